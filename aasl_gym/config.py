@@ -1,0 +1,421 @@
+"""Configuration: small frozen dataclasses, loaded from YAML and validated here, in one place.
+
+Every field carries its unit in its name or in the comment beside it. A YAML file may set any subset of
+the fields; the rest keep their defaults. Unknown keys, wrong types and out-of-range values raise
+:class:`ConfigError` with the dotted path of the offending key and what is allowed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "mixed")
+MEASUREMENT_MODES = ("signal", "geometric")
+INITIALIZERS = ("lcmap", "naive", "random", "tdoa-ls")
+MULTIPATH_MODELS = ("none", "linear", "phasor")
+FILTER_MODELS = ("cv", "ca", "ctrv")
+PATROLS = ("helix", "spiral", "circle", "lawnmower")
+RECEIVER_KINDS = ("auv", "surface")
+WAVEFORMS = ("tone", "sweep", "hop")
+
+
+class ConfigError(ValueError):
+    """A configuration value or key is not allowed; the message names it and what is allowed."""
+
+
+def _check(condition: bool, path: str, message: str) -> None:
+    if not condition:
+        raise ConfigError(f"{path}: {message}")
+
+
+def _choice(value: str, allowed: tuple[str, ...], path: str) -> None:
+    _check(value in allowed, path, f"{value!r} is not one of {list(allowed)}")
+
+
+def _positive(value: float, path: str) -> None:
+    _check(math.isfinite(value) and value > 0, path, f"must be a finite number > 0, got {value!r}")
+
+
+def _non_negative(value: float, path: str) -> None:
+    _check(math.isfinite(value) and value >= 0, path, f"must be a finite number >= 0, got {value!r}")
+
+
+def _ordered_pair(pair: tuple[float, float], path: str, minimum: float = 0.0) -> None:
+    _check(len(pair) == 2, path, f"must be [low, high], got {list(pair)}")
+    low, high = pair
+    _check(minimum <= low <= high and math.isfinite(high), path, f"must satisfy {minimum} <= low <= high, got {list(pair)}")
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """The water column, the pod and the propagation."""
+
+    sound_speed: float = 1500.0  # m/s
+    water_depth: float = 60.0  # m; the bed is at z = -water_depth
+    fixed_position: tuple[float, float, float] = (0.0, 0.0, -0.96)  # m, hydrophone on the pod
+    region_radius: float = 40.0  # m, horizontal radius of the surveillance region around the origin
+    reflections: bool = True  # simulate the surface and bed image paths
+    surface_reflection: float = -0.9  # pressure-release surface: negative
+    bed_reflection: float = 0.3
+    noise_level_db: float = 80.0  # dB re 1 uPa, ambient noise in the receiver band
+
+    def __post_init__(self) -> None:
+        _positive(self.sound_speed, "world.sound_speed")
+        _positive(self.water_depth, "world.water_depth")
+        _positive(self.region_radius, "world.region_radius")
+        _check(len(self.fixed_position) == 3, "world.fixed_position", "must be [x, y, z] in metres")
+        z = self.fixed_position[2]
+        _check(-self.water_depth < z < 0, "world.fixed_position", f"z = {z} m is outside the water column (-{self.water_depth}, 0)")
+        _check(-1 <= self.surface_reflection <= 0, "world.surface_reflection", "must lie in [-1, 0] (pressure-release surface)")
+        _check(0 <= self.bed_reflection <= 1, "world.bed_reflection", "must lie in [0, 1]")
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """The adversary's sound source: its tone and its (true) motion."""
+
+    motion: str = "cv"  # static, cv, ca, ctrv, mixed (one of the four, drawn per episode)
+    frequency: float = 1000.0  # Hz, tone f0
+    waveform: str = "tone"  # tone, sweep, hop (signal mode; geometric mode treats all as tone-ambiguous only for tone)
+    initial_radius: float = 20.0  # m, initial position uniform in the ball of this radius about the origin
+    speed_range: tuple[float, float] = (0.2, 1.5)  # m/s, cv / ca initial / ctrv speed
+    max_speed: float = 1.5  # m/s, ca never exceeds it
+    acceleration_range: tuple[float, float] = (0.002, 0.01)  # m/s^2, ca
+    turn_rate_range: tuple[float, float] = (0.02, 0.1)  # rad/s, ctrv, sign drawn at random
+    max_vertical_speed: float = 0.1  # m/s
+    boundary_margin: float = 2.0  # m, the source keeps this far from surface, bed and region edge
+    range_rate_bias: float = 0.0  # m/s, true b_v (clock-rate offset between the two recorders)
+    source_level_db: float = 140.0  # dB re 1 uPa at 1 m, in the receiver band
+
+    def __post_init__(self) -> None:
+        _choice(self.motion, SOURCE_MOTIONS, "source.motion")
+        _choice(self.waveform, WAVEFORMS, "source.waveform")
+        _positive(self.frequency, "source.frequency")
+        _positive(self.initial_radius, "source.initial_radius")
+        _ordered_pair(self.speed_range, "source.speed_range")
+        _positive(self.max_speed, "source.max_speed")
+        _check(self.speed_range[1] <= self.max_speed, "source.speed_range", f"upper end must not exceed source.max_speed = {self.max_speed}")
+        _ordered_pair(self.acceleration_range, "source.acceleration_range")
+        _ordered_pair(self.turn_rate_range, "source.turn_rate_range")
+        _non_negative(self.max_vertical_speed, "source.max_vertical_speed")
+        _non_negative(self.boundary_margin, "source.boundary_margin")
+        _check(math.isfinite(self.range_rate_bias), "source.range_rate_bias", "must be finite")
+
+
+@dataclass(frozen=True)
+class ReceiverConfig:
+    """The robot that carries the mobile hydrophone, and its navigation."""
+
+    kind: str = "auv"  # auv, or surface (a surface vessel ignores the z command)
+    max_speed: float = 1.5  # m/s, the action box [-1, 1] maps to this
+    start_position: tuple[float, float, float] = (10.0, 0.0, -7.0)  # m
+    keep_out_radius: float = 3.0  # m, sphere around the fixed hydrophone the robot never enters
+    min_depth: float = 1.0  # m below the surface
+    bed_clearance: float = 2.0  # m above the bed
+    region_radius: float = 60.0  # m, horizontal distance from the origin the robot may go
+    surface_depth: float = 1.0  # m, depth of a surface vessel's hydrophone
+    nav_position_sd: float = 0.05  # m, sigma_rov: white error on the reported position
+    nav_velocity_sd: float | None = None  # m/s; None means 0.4 * nav_position_sd
+    nav_drift_sd: float = 0.0  # m/sqrt(s), random-walk drift of the reported position (0 = none)
+
+    def __post_init__(self) -> None:
+        _choice(self.kind, RECEIVER_KINDS, "receiver.kind")
+        _positive(self.max_speed, "receiver.max_speed")
+        _check(len(self.start_position) == 3, "receiver.start_position", "must be [x, y, z] in metres")
+        _non_negative(self.keep_out_radius, "receiver.keep_out_radius")
+        _non_negative(self.min_depth, "receiver.min_depth")
+        _non_negative(self.bed_clearance, "receiver.bed_clearance")
+        _positive(self.region_radius, "receiver.region_radius")
+        _positive(self.surface_depth, "receiver.surface_depth")
+        _non_negative(self.nav_position_sd, "receiver.nav_position_sd")
+        if self.nav_velocity_sd is not None:
+            _non_negative(self.nav_velocity_sd, "receiver.nav_velocity_sd")
+        _non_negative(self.nav_drift_sd, "receiver.nav_drift_sd")
+
+    @property
+    def velocity_sd(self) -> float:
+        """Reported-velocity error, m/s."""
+        return 0.4 * self.nav_position_sd if self.nav_velocity_sd is None else self.nav_velocity_sd
+
+
+@dataclass(frozen=True)
+class MeasurementConfig:
+    """How [RD, RRD] is produced each step."""
+
+    mode: str = "geometric"  # geometric now; signal (the front end) lands with its own issue
+    rate: float = 5.0  # Hz, one measurement per env step
+    range_difference_sd: float = 0.05  # m, sigma_R (geometric mode)
+    range_rate_difference_sd: float = 0.02  # m/s, sigma_V (geometric mode)
+
+    def __post_init__(self) -> None:
+        _choice(self.mode, MEASUREMENT_MODES, "measurement.mode")
+        _positive(self.rate, "measurement.rate")
+        _positive(self.range_difference_sd, "measurement.range_difference_sd")
+        _positive(self.range_rate_difference_sd, "measurement.range_rate_difference_sd")
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """The UKF: motion model, process noise, measurement model, sigma points, divergence handling."""
+
+    motion_model: str = "cv"  # cv, ca, ctrv
+    multipath: str = "phasor"  # none, linear, phasor: the filter's model of the measured RD
+    acceleration_psd: float = 1e-5  # m^2/s^3, white-acceleration spectral density (cv, ctrv)
+    jerk_psd: float = 1e-6  # m^2/s^5, white-jerk spectral density (ca)
+    turn_rate_psd: float = 1e-6  # rad^2/s^3 (ctrv)
+    range_bias_psd: float = 1e-6  # m^2/s, random walk of b_p
+    rate_bias_psd: float = 1e-6  # m^2/s^3, random walk of b_v
+    compensate_navigation: bool = True  # use R_eff = R_ac + diag(sigma_rov^2, sigma_rov_v^2)
+    alpha: float = 0.5
+    beta: float = 2.0
+    kappa: float = 0.0
+    divergence_window: float = 5.0  # s, window of the moving-average NIS
+    divergence_nis: float = 8.0  # mean NIS over the window above this (2 expected) = diverged
+    reinit_window: float = 10.0  # s of recent measurements LC-MAP uses to re-initialize
+    reinit_cooldown: float = 5.0  # s after a (re)initialization before divergence is tested again
+
+    def __post_init__(self) -> None:
+        _choice(self.motion_model, FILTER_MODELS, "filter.motion_model")
+        _choice(self.multipath, MULTIPATH_MODELS, "filter.multipath")
+        for name in ("acceleration_psd", "jerk_psd", "turn_rate_psd", "range_bias_psd", "rate_bias_psd"):
+            _non_negative(getattr(self, name), f"filter.{name}")
+        _check(0 < self.alpha <= 1, "filter.alpha", f"must lie in (0, 1], got {self.alpha}")
+        _non_negative(self.beta, "filter.beta")
+        _check(math.isfinite(self.kappa), "filter.kappa", "must be finite")
+        _positive(self.divergence_window, "filter.divergence_window")
+        _positive(self.divergence_nis, "filter.divergence_nis")
+        _positive(self.reinit_window, "filter.reinit_window")
+        _non_negative(self.reinit_cooldown, "filter.reinit_cooldown")
+
+
+@dataclass(frozen=True)
+class InitializerConfig:
+    """How the filter is started from an early burst of measurements."""
+
+    name: str = "lcmap"  # lcmap, naive, random, tdoa-ls
+    burst_duration: float = 2.0  # s of measurements before the filter starts
+    candidate_directions: int = 600  # lcmap / random: directions on the locus per whole-period offset
+    information_weight: float = 1.0  # lambda in J - lambda * log det F (1 = Jeffreys prior)
+    velocity_prior_sd: float = 1.0  # m/s, MAP prior on the source velocity
+    max_source_speed: float = 2.0  # m/s, plausibility bound
+    position_sd: float = 15.0  # m, prior / non-lcmap initial position spread
+    range_bias_sd: float = 0.05  # m, initial sd of b_p once the whole-period offset is chosen
+    rate_bias_sd: float = 0.02  # m/s, initial sd of b_v
+    covariance_inflation: float = 25.0  # lcmap's local-information covariance is multiplied by this
+
+    def __post_init__(self) -> None:
+        _choice(self.name, INITIALIZERS, "initializer.name")
+        _positive(self.burst_duration, "initializer.burst_duration")
+        _check(self.candidate_directions >= 8, "initializer.candidate_directions", "must be >= 8")
+        _non_negative(self.information_weight, "initializer.information_weight")
+        for name in ("velocity_prior_sd", "max_source_speed", "position_sd", "range_bias_sd", "rate_bias_sd"):
+            _positive(getattr(self, name), f"initializer.{name}")
+        _check(self.covariance_inflation >= 1, "initializer.covariance_inflation", "must be >= 1")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Weights of the reward terms (each term is reported in info['reward_terms'])."""
+
+    information_gain: float = 1.0  # per nat of log det Fisher information gained
+    error_shrinkage: float = 0.1  # per metre of true position error removed (privileged)
+    control_effort: float = 0.01  # per unit |action|^2
+    constraint_penalty: float = 1.0  # per step the robot hits a keep-out / region / depth limit
+    success_bonus: float = 10.0  # once, when the error first falls below success_threshold
+    success_threshold: float = 1.0  # m
+
+    def __post_init__(self) -> None:
+        for name in ("information_gain", "error_shrinkage", "control_effort", "constraint_penalty", "success_bonus"):
+            _check(math.isfinite(getattr(self, name)), f"reward.{name}", "must be finite")
+        _positive(self.success_threshold, "reward.success_threshold")
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    duration: float = 120.0  # s; the episode is truncated here
+    convergence_threshold: float = 1.0  # m
+    terminate_on_convergence: bool = False
+
+    def __post_init__(self) -> None:
+        _positive(self.duration, "episode.duration")
+        _positive(self.convergence_threshold, "episode.convergence_threshold")
+
+
+@dataclass(frozen=True)
+class PatrolConfig:
+    """Scripted patrol geometry, centred on the fixed hydrophone (chosen by a sweep, see configs/)."""
+
+    speed: float = 1.0  # m/s along the path
+    radius: float = 10.0  # m, helix / circle radius
+    depth_min: float = 2.0  # m, helix depth oscillates between depth_min and depth_max
+    depth_max: float = 12.0  # m
+    depth_period: float = 40.0  # s, period of the helix's depth oscillation
+    spiral_radius_min: float = 4.0  # m, spiral starts just outside the keep-out zone
+    spiral_radius_max: float = 25.0  # m
+    spiral_period: float = 120.0  # s, out and back
+    spiral_depth: float = 7.0  # m
+    lawnmower_width: float = 40.0  # m, side of the square the lawnmower sweeps
+    lawnmower_spacing: float = 10.0  # m between legs
+    position_gain: float = 0.5  # 1/s, feedback that pulls the robot onto the pattern
+
+    def __post_init__(self) -> None:
+        for name in (
+            "speed", "radius", "depth_period", "spiral_radius_max", "spiral_period",
+            "lawnmower_width", "lawnmower_spacing", "position_gain",
+        ):
+            _positive(getattr(self, name), f"patrol.{name}")
+        _non_negative(self.depth_min, "patrol.depth_min")
+        _check(self.depth_min <= self.depth_max, "patrol.depth_max", "must be >= patrol.depth_min")
+        _non_negative(self.spiral_radius_min, "patrol.spiral_radius_min")
+        _check(self.spiral_radius_min < self.spiral_radius_max, "patrol.spiral_radius_max", "must be > patrol.spiral_radius_min")
+        _non_negative(self.spiral_depth, "patrol.spiral_depth")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    world: WorldConfig = field(default_factory=WorldConfig)
+    source: SourceConfig = field(default_factory=SourceConfig)
+    receiver: ReceiverConfig = field(default_factory=ReceiverConfig)
+    measurement: MeasurementConfig = field(default_factory=MeasurementConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    initializer: InitializerConfig = field(default_factory=InitializerConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    patrol: PatrolConfig = field(default_factory=PatrolConfig)
+
+    def __post_init__(self) -> None:
+        start = self.receiver.start_position
+        depth = self.world.water_depth
+        _check(-depth + self.receiver.bed_clearance <= start[2] <= -self.receiver.min_depth,
+               "receiver.start_position", f"z = {start[2]} m must lie between -{depth} + bed_clearance and -min_depth")
+        _check(self.patrol.depth_max < depth - self.receiver.bed_clearance, "patrol.depth_max",
+               f"must be shallower than the bed ({depth} m) less receiver.bed_clearance")
+        _check(self.source.initial_radius <= self.world.region_radius, "source.initial_radius",
+               f"must not exceed world.region_radius = {self.world.region_radius}")
+        _check(2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source")
+
+    @property
+    def dt(self) -> float:
+        """Step length, s."""
+        return 1.0 / self.measurement.rate
+
+    @property
+    def max_steps(self) -> int:
+        return int(round(self.episode.duration * self.measurement.rate))
+
+    @property
+    def wavelength(self) -> float:
+        """Tone wavelength c / f0, m."""
+        return self.world.sound_speed / self.source.frequency
+
+    def replace(self, **sections: Mapping[str, Any]) -> "EnvConfig":
+        """A copy with some fields changed, e.g. ``replace(filter={"multipath": "none"})``."""
+        return from_dict(merge(to_dict(self), sections))
+
+
+def to_dict(config: Any) -> dict[str, Any]:
+    """The config as plain, YAML-ready Python values."""
+    out = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value):
+            out[f.name] = to_dict(value)
+        elif isinstance(value, tuple):
+            out[f.name] = list(value)
+        else:
+            out[f.name] = value
+    return out
+
+
+def merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    """Recursive dict merge; ``update`` wins."""
+    out = dict(base)
+    for key, value in update.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _coerce(value: Any, annotation: Any, path: str) -> Any:
+    origin = typing.get_origin(annotation)
+    if origin in (typing.Union, types.UnionType):
+        options = typing.get_args(annotation)
+        if value is None and type(None) in options:
+            return None
+        (inner,) = [a for a in options if a is not type(None)]
+        return _coerce(value, inner, path)
+    if origin is tuple:
+        _check(isinstance(value, (list, tuple)), path, f"must be a list, got {value!r}")
+        inner = typing.get_args(annotation)
+        if len(inner) == 2 and inner[1] is Ellipsis:
+            return tuple(_coerce(v, inner[0], f"{path}[{i}]") for i, v in enumerate(value))
+        _check(len(value) == len(inner), path, f"must have {len(inner)} entries, got {len(value)}")
+        return tuple(_coerce(v, t, f"{path}[{i}]") for i, (v, t) in enumerate(zip(value, inner)))
+    if annotation is bool:
+        _check(isinstance(value, bool), path, f"must be true or false, got {value!r}")
+        return value
+    if annotation is int:
+        _check(isinstance(value, int) and not isinstance(value, bool), path, f"must be an integer, got {value!r}")
+        return value
+    if annotation is float:
+        _check(isinstance(value, (int, float)) and not isinstance(value, bool), path, f"must be a number, got {value!r}")
+        return float(value)
+    if annotation is str:
+        _check(isinstance(value, str), path, f"must be a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported annotation {annotation!r} at {path}")
+
+
+def _build(cls: type, data: Mapping[str, Any], path: str) -> Any:
+    _check(isinstance(data, Mapping), path or "config", f"must be a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    prefix = f"{path}." if path else ""
+    if unknown:
+        raise ConfigError(f"{prefix}{unknown[0]}: unknown key; allowed keys are {sorted(fields)}")
+    kwargs = {}
+    for name, value in data.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint):
+            kwargs[name] = _build(hint, value, f"{prefix}{name}")
+        else:
+            kwargs[name] = _coerce(value, hint, f"{prefix}{name}")
+    return cls(**kwargs)
+
+
+def from_dict(data: Mapping[str, Any] | None) -> EnvConfig:
+    """Build and validate an :class:`EnvConfig` from nested plain values (missing keys keep defaults)."""
+    return _build(EnvConfig, data or {}, "")
+
+
+def load_config(path: str | Path) -> EnvConfig:
+    """Load a YAML config file; errors name the file and the offending key."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} does not exist")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+    try:
+        return from_dict(data)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from exc
+
+
+def save_config(config: EnvConfig, path: str | Path) -> None:
+    """Write the config as YAML, atomically (write a temporary file, then rename)."""
+    from aasl_gym.io import atomic_write_text
+
+    atomic_write_text(path, yaml.safe_dump(to_dict(config), sort_keys=False))

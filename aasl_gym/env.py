@@ -1,0 +1,382 @@
+"""The Gymnasium environment: the stages of the pipeline wired together, one measurement per step."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from aasl_gym import metrics, rewards
+from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_config, to_dict
+from aasl_gym.estimator import SourceTracker
+from aasl_gym.fisher import InformationTracker, measurement_jacobian
+from aasl_gym.filters import ConstantVelocity
+from aasl_gym.measurements import GeometricSensor, Propagation, direct_measurement
+from aasl_gym.motion import NavigationError, advance_source, move_receiver, receiver_region, sample_source, source_region
+from aasl_gym.patrols import PatrolGeometry, patrol_command
+
+# Keyword arguments of gym.make / AASLEnv that override one config field each.
+OVERRIDES: dict[str, tuple[str, str]] = {
+    "source_motion": ("source", "motion"),
+    "measurement": ("measurement", "mode"),
+    "initializer": ("initializer", "name"),
+    "reflections": ("world", "reflections"),
+    "multipath": ("filter", "multipath"),
+    "filter_model": ("filter", "motion_model"),
+}
+
+# Observation layout: (name, length, what it holds). Scales are applied as documented in AASLEnv.
+OBSERVATION_LAYOUT = (
+    ("relative_estimate", 3, "estimated source position minus reported receiver position, / region_radius"),
+    ("estimate_velocity", 3, "estimated source velocity, / source.max_speed"),
+    ("receiver_position", 3, "reported receiver position, / region_radius"),
+    ("receiver_velocity", 3, "reported receiver velocity, / receiver.max_speed"),
+    ("log_variance", 3, "natural log of the estimate's position variances (m^2), / 10"),
+    ("measurement", 2, "latest [RD / region_radius, RRD / source.max_speed]"),
+    ("innovation", 2, "latest innovation divided by its predicted sd, / 10"),
+    ("time", 1, "elapsed time / episode duration"),
+    ("initialized", 1, "1 once the filter runs, else 0"),
+)
+OBSERVATION_SLICES: dict[str, slice] = {}
+_start = 0
+for _name, _length, _ in OBSERVATION_LAYOUT:
+    OBSERVATION_SLICES[_name] = slice(_start, _start + _length)
+    _start += _length
+OBSERVATION_SIZE = _start
+OBSERVATION_BOUND = 10.0
+
+
+def resolve_config(config: EnvConfig | Mapping[str, Any] | str | Path | None, **overrides: Any) -> EnvConfig:
+    """An :class:`EnvConfig` from a config object, a nested dict or a YAML path, with keyword overrides.
+
+    ``overrides`` are the keys of :data:`OVERRIDES`; ``None`` leaves a field alone. Bad values raise
+    :class:`ConfigError` naming the keyword.
+    """
+    if config is None:
+        base = EnvConfig()
+    elif isinstance(config, EnvConfig):
+        base = config
+    elif isinstance(config, Mapping):
+        base = from_dict(config)
+    elif isinstance(config, (str, Path)):
+        base = load_config(config)
+    else:
+        raise ConfigError(f"config: expected a path to a YAML file, a mapping or an EnvConfig, got {type(config).__name__}")
+    unknown = sorted(set(overrides) - set(OVERRIDES))
+    if unknown:
+        raise ConfigError(f"{unknown[0]}: unknown override; allowed: {sorted(OVERRIDES)} and config")
+    data = to_dict(base)
+    for keyword, value in overrides.items():
+        if value is None:
+            continue
+        section, key = OVERRIDES[keyword]
+        data[section][key] = value
+        try:
+            from_dict(data)
+        except ConfigError as exc:
+            raise ConfigError(f"{keyword}={value!r}: {exc}") from exc
+    return from_dict(data)
+
+
+class AASLEnv(gym.Env):
+    """Steer a mobile hydrophone so that a TDOA/FDOA tracker localizes an underwater sound source fast.
+
+    ## Description
+    A narrowband source (a tone near 1 kHz) moves near an underwater data-center pod. One hydrophone is
+    fixed on the pod, the other rides on the robot this environment steers. Every step (0.2 s) the two
+    channels yield a range difference (RD, m) and a range-rate difference (RRD, m/s); an unscented
+    Kalman filter started by the LC-MAP initializer tracks the source in 3-D. The robot's path decides
+    how observable the source is, and so how fast the estimate converges. See ``shared/SPEC.md`` for
+    the physics and sign conventions.
+
+    ## Action Space
+    ``Box(-1, 1, (3,), float32)``: a velocity command scaled by ``receiver.max_speed`` (1.5 m/s). In
+    ``AASL-v0`` it is the command itself; in the patrol variants (``AASL-Helix-v0``, ``-Spiral-``,
+    ``-Circle-``, ``-Lawnmower-``) it is a residual added to the pattern's command, so a zero action
+    flies the pure scripted patrol. The command's norm is clipped to the speed limit; a surface vessel
+    ignores z. Finite actions outside the box are clipped to it; NaN or infinite actions raise
+    ``ValueError``. The robot never leaves the water column (``receiver.min_depth``,
+    ``bed_clearance``), its region (``receiver.region_radius``) or enters the keep-out sphere
+    (``receiver.keep_out_radius`` about the fixed hydrophone): a command that would is projected and
+    penalized.
+
+    ## Observation Space
+    ``Box(-10, 10, (21,), float32)``, built only from what the robot knows (no ground truth):
+
+    | index | meaning | scale |
+    |-------|---------|-------|
+    | 0-2   | estimated source position minus reported receiver position | / world.region_radius |
+    | 3-5   | estimated source velocity | / source.max_speed |
+    | 6-8   | reported receiver position | / world.region_radius |
+    | 9-11  | reported receiver velocity | / receiver.max_speed |
+    | 12-14 | log of the estimate's position variances (m^2) | / 10 |
+    | 15-16 | latest measurement [RD, RRD] | / region_radius, / source.max_speed |
+    | 17-18 | latest innovation over its predicted sd | / 10 |
+    | 19    | elapsed time | / episode.duration |
+    | 20    | 1 once the filter runs, else 0 | |
+
+    Entries are 0 where they do not exist yet (before the first measurement or initialization) and
+    clipped to [-10, 10].
+
+    ## Rewards
+    A weighted sum (weights in ``reward``) of ``information_gain`` (increase of the log-determinant of
+    the position Fisher information at the estimate, nats), ``error_shrinkage`` (decrease of the true
+    error, m; privileged), ``control_effort`` (-|action|^2), ``constraint_penalty`` (-1 on a step that
+    hits a limit) and ``success_bonus`` (1 when the error first falls below ``success_threshold``).
+    Each weighted term is in ``info["reward_terms"]``.
+
+    ## Starting State
+    The robot starts at ``receiver.start_position``. The source starts uniformly within
+    ``source.initial_radius`` (20 m) of the origin inside the water column and follows
+    ``source.motion`` (static, cv, ca, ctrv or mixed) with parameters drawn from the seed. The filter
+    starts after ``initializer.burst_duration`` seconds of measurements.
+
+    ## Episode End
+    * Termination: only if ``episode.terminate_on_convergence`` is true, when the position error
+      falls below ``episode.convergence_threshold``.
+    * Truncation: at ``episode.duration`` (120 s = 600 steps at 5 Hz). The environment truncates
+      itself, so a config with another duration or rate needs no other wrapper.
+
+    ## Info
+    Every step: ``time``, ``source_position``, ``source_velocity``, ``receiver_position``,
+    ``receiver_velocity``, ``receiver_position_reported``, ``fixed_position``, ``estimate_position``,
+    ``estimate_velocity`` and ``position_error`` (NaN until initialized), ``position_covariance``
+    (3x3), ``measurement``, ``measurement_true`` (noise-free direct-path [RD, RRD]), ``snr_db`` (of the weaker
+    channel, from the source level, spreading and noise level), ``initialized``, ``converged`` (error below the threshold now),
+    ``reinitialized``, ``fim_logdet``, ``reward_terms``. On the last step also ``convergence_time``,
+    ``rmse``, ``final_error``, ``success`` (threshold -> bool), ``time_to_first_estimate`` and
+    ``reinitializations``. Values that can be NaN (``position_error`` and the last-step metrics) are 0-d float64 arrays, so that two infos from the same seed compare equal NaN for NaN.
+
+    ## Arguments
+    ``AASLEnv(config=None, patrol=None, render_mode=None, source_motion=None, measurement=None,
+    initializer=None, reflections=None, multipath=None, filter_model=None)``. ``config`` is an
+    :class:`~aasl_gym.config.EnvConfig`, a nested dict or the path of a YAML file; the other keywords
+    override one field each and are validated with errors that name them. ``render_mode`` is
+    ``"rgb_array"`` (works headless) or ``"human"`` (a matplotlib window).
+
+    ## Version History
+    * v0: initial version (geometric measurement mode).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
+
+    def __init__(
+        self,
+        config: EnvConfig | Mapping[str, Any] | str | Path | None = None,
+        patrol: str | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ):
+        self.config = resolve_config(config, **overrides)
+        if self.config.measurement.mode == "signal":
+            raise NotImplementedError(
+                "measurement='signal' (the acoustic front end) is not implemented yet; use measurement='geometric'"
+            )
+        if patrol is not None and patrol not in PATROLS:
+            raise ConfigError(f"patrol={patrol!r}: allowed values are {list(PATROLS)} or None")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ConfigError(f"render_mode={render_mode!r}: allowed values are {self.metadata['render_modes']} or None")
+        self.patrol = patrol
+        self.render_mode = render_mode
+        cfg = self.config
+        self.dt = cfg.dt
+        self.max_steps = cfg.max_steps
+        self.fixed = np.asarray(cfg.world.fixed_position, dtype=float)
+        self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self.observation_space = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, (OBSERVATION_SIZE,), np.float32)
+        self.source_region = source_region(cfg.world, cfg.source)
+        self.receiver_region = receiver_region(cfg.world, cfg.receiver)
+        self.patrol_geometry = PatrolGeometry(self.fixed, np.asarray(cfg.receiver.start_position, dtype=float))
+        measurement_sd = np.array([cfg.measurement.range_difference_sd, cfg.measurement.range_rate_difference_sd])
+        self.acoustic_covariance = np.diag(measurement_sd**2)
+        navigation_variance = np.array([cfg.receiver.nav_position_sd**2, cfg.receiver.velocity_sd**2])
+        self.filter_covariance = self.acoustic_covariance + (np.diag(navigation_variance) if cfg.filter.compensate_navigation else 0.0)
+        self.propagation = Propagation.from_config(cfg.world, cfg.source.frequency)
+        period = cfg.wavelength if cfg.source.waveform == "tone" else None
+        self.sensor = GeometricSensor(measurement_sd, self.propagation, cfg.world.reflections, period)
+        self.tracker = SourceTracker(cfg, self.source_region, self.filter_covariance)
+        self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
+        self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
+        ini = cfg.initializer
+        self.prior_mean = np.array([0.0, 0.0, -0.5 * cfg.source.initial_radius, 0, 0, 0, 0, 0])
+        self.prior_covariance = np.diag([ini.position_sd**2] * 3 + [ini.velocity_prior_sd**2] * 3 + [cfg.source.initial_radius**2, ini.rate_bias_sd**2])
+        self.surface_depth = cfg.receiver.surface_depth if cfg.receiver.kind == "surface" else None
+        self._renderer = None
+        self._time = 0.0
+
+    # -- episode -------------------------------------------------------------------------------
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        cfg = self.config
+        rng = self.np_random
+        self.source = sample_source(rng, cfg.source.motion, cfg.source, cfg.world)
+        self.receiver_position = np.asarray(cfg.receiver.start_position, dtype=float).copy()
+        if self.surface_depth is not None:
+            self.receiver_position[2] = -self.surface_depth
+        self.receiver_velocity = np.zeros(3)
+        self.navigation.reset()
+        self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, self.dt)
+        self.sensor.reset()
+        self.tracker.reset()
+        self.information.reset(self.prior_covariance)
+        self._time = 0.0
+        self._steps = 0
+        self._fim_logdet = self.information.logdet
+        self._error = math.nan
+        self._succeeded = False
+        self._latest = np.zeros(4)  # measurement (2) and normalized innovation (2)
+        self._times: list[float] = []
+        self._errors: list[float] = []
+        self.trajectory: dict[str, list[np.ndarray]] = {"receiver": [self.receiver_position.copy()], "source": [self.source.position.copy()], "estimate": []}
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(), {"time": 0.0, "source_motion": self.source.kind}
+
+    def _command(self, action: np.ndarray) -> np.ndarray:
+        command = action * self.config.receiver.max_speed
+        if self.patrol is not None:
+            command = command + patrol_command(self.patrol, self._time, self.reported_position, self.config.patrol, self.patrol_geometry)
+        return command
+
+    def step(self, action):
+        action = np.asarray(action, dtype=float).reshape(-1)
+        if action.shape != (3,):
+            raise ValueError(f"action must have shape (3,), got {action.shape}")
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action must be finite, got {action.tolist()}")
+        action = np.clip(action, -1.0, 1.0)
+        cfg = self.config
+        rng = self.np_random
+        dt = self.dt
+
+        # 1. the robot moves, the source moves
+        self.receiver_position, self.receiver_velocity, hit = move_receiver(
+            self.receiver_position, self._command(action), dt, cfg.receiver.max_speed, self.receiver_region,
+            self.fixed, cfg.receiver.keep_out_radius, self.surface_depth,
+        )
+        self.source = advance_source(self.source, dt, self.source_region)
+        self._time = (self._steps + 1) * dt
+        self._steps += 1
+
+        # 2. measure, from the true geometry; navigation reports the robot's state with its error
+        z = self.sensor.measure(rng, self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed, cfg.source.range_rate_bias)
+        self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, dt)
+
+        # 3. estimate
+        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, rng)
+        estimate = self.tracker.position
+        estimate_velocity = self.tracker.velocity
+        linearization = np.concatenate([estimate, estimate_velocity]) if out.initialized else self.prior_mean[:6]
+        jacobian = measurement_jacobian(linearization[:3], linearization[3:], self.reported_position, self.reported_velocity, self.fixed)
+        fim_logdet = self.information.step(dt, jacobian, self.filter_covariance)
+        error = float(np.linalg.norm(estimate - self.source.position)) if out.initialized else math.nan
+        self._latest[:2] = z
+        self._latest[2:] = out.innovation / out.innovation_sd if np.all(np.isfinite(out.innovation)) else 0.0
+
+        # 4. reward
+        first_success = not self._succeeded and error < cfg.reward.success_threshold
+        self._succeeded |= first_success
+        terms = rewards.weighted_terms(cfg.reward, {
+            "information_gain": rewards.information_gain(self._fim_logdet, fim_logdet),
+            "error_shrinkage": rewards.error_shrinkage(self._error, error),
+            "control_effort": rewards.control_effort(action),
+            "constraint_penalty": rewards.constraint_penalty(hit),
+            "success_bonus": rewards.success_bonus(first_success),
+        })
+        reward = float(sum(terms.values()))
+        self._fim_logdet, self._error = fim_logdet, error
+        self._times.append(self._time)
+        self._errors.append(error)
+
+        converged = error < cfg.episode.convergence_threshold
+        terminated = bool(cfg.episode.terminate_on_convergence and converged)
+        truncated = self._steps >= self.max_steps
+        info = {
+            "time": self._time,
+            "source_position": self.source.position.copy(),
+            "source_velocity": self.source.velocity.copy(),
+            "receiver_position": self.receiver_position.copy(),
+            "receiver_velocity": self.receiver_velocity.copy(),
+            "receiver_position_reported": self.reported_position.copy(),
+            "fixed_position": self.fixed.copy(),
+            "estimate_position": estimate,
+            "estimate_velocity": estimate_velocity,
+            "position_error": np.array(error),
+            "position_covariance": self.tracker.position_covariance,
+            "measurement": np.asarray(z, dtype=float),
+            "measurement_true": direct_measurement(self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed),
+            "snr_db": self._snr_db(),
+            "initialized": out.initialized,
+            "converged": bool(converged),
+            "reinitialized": out.reinitialized,
+            "fim_logdet": fim_logdet,
+            "reward_terms": terms,
+        }
+        if terminated or truncated:
+            info.update(self.episode_summary())
+        self.trajectory["receiver"].append(self.receiver_position.copy())
+        self.trajectory["source"].append(self.source.position.copy())
+        if out.initialized:
+            self.trajectory["estimate"].append(estimate)
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(), reward, terminated, truncated, info
+
+    def _snr_db(self) -> float:
+        """SNR of the weaker channel, dB: source level - 20 log10(range / 1 m) - noise level."""
+        far = max(np.linalg.norm(self.source.position - self.receiver_position), np.linalg.norm(self.source.position - self.fixed), 1.0)
+        return float(self.config.source.source_level_db - 20 * np.log10(far) - self.config.world.noise_level_db)
+
+    def episode_summary(self) -> dict[str, Any]:
+        """The episode's metrics so far (added to ``info`` on the last step)."""
+        times, errors = np.asarray(self._times), np.asarray(self._errors)
+        return {
+            "convergence_time": np.array(metrics.convergence_time(times, errors, self.config.episode.convergence_threshold)),
+            "rmse": np.array(metrics.rmse(errors)),
+            "final_error": np.array(errors[-1] if errors.size else math.nan),
+            "success": metrics.success(times, errors),
+            "time_to_first_estimate": np.array(metrics.time_to_first_estimate(times, errors)),
+            "reinitializations": self.tracker.reinitializations,
+        }
+
+    def _observation(self) -> np.ndarray:
+        cfg = self.config
+        scale = cfg.world.region_radius
+        obs = np.zeros(OBSERVATION_SIZE)
+        s = OBSERVATION_SLICES
+        if self.tracker.initialized:
+            obs[s["relative_estimate"]] = (self.tracker.position - self.reported_position) / scale
+            obs[s["estimate_velocity"]] = self.tracker.velocity / cfg.source.max_speed
+            variances = np.maximum(np.diag(self.tracker.ukf.P)[:3], 1e-12)
+            obs[s["log_variance"]] = np.log(variances) / 10.0
+            obs[s["initialized"]] = 1.0
+        obs[s["receiver_position"]] = self.reported_position / scale
+        obs[s["receiver_velocity"]] = self.reported_velocity / cfg.receiver.max_speed
+        obs[s["measurement"]] = self._latest[:2] / np.array([scale, cfg.source.max_speed])
+        obs[s["innovation"]] = self._latest[2:] / 10.0
+        obs[s["time"]] = self._time / cfg.episode.duration
+        np.clip(obs, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=obs)
+        return obs.astype(np.float32)
+
+    # -- rendering -----------------------------------------------------------------------------
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        from aasl_gym.render import Renderer
+
+        if self._renderer is None:
+            self._renderer = Renderer(self.config, human=self.render_mode == "human")
+        covariance = self.tracker.position_covariance if self.tracker.initialized else None
+        return self._renderer.draw(self.trajectory, self.fixed, covariance, self._time)
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,206 @@
+"""Unscented Kalman filter (Merwe scaled sigma points, vectorized) and the source motion models.
+
+State layouts (positions m, velocities m/s, b_p m, b_v m/s):
+
+* ``cv``   (8):  [p(3), v(3), b_p, b_v]                 constant velocity, white acceleration
+* ``ca``   (11): [p(3), v(3), a(3), b_p, b_v]           constant acceleration, white jerk
+* ``ctrv`` (9):  [p(3), v(3), omega, b_p, b_v]          horizontal coordinated turn at rate omega (rad/s)
+
+Every layout keeps p in 0:3, v in 3:6 and the two measurement biases last, so the measurement function
+is shared. The UKF follows filterpy's ``UnscentedKalmanFilter`` step for step (a test runs both): the
+predict step redraws the sigma points from the predicted mean and covariance, and the update uses them.
+
+References: R. van der Merwe, "Sigma-Point Kalman Filters for Probabilistic Inference in Dynamic
+State-Space Models", 2004; Y. Bar-Shalom et al., "Estimation with Applications to Tracking and
+Navigation", 2001 (process-noise models, section 6.2).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from aasl_gym.config import FilterConfig
+from aasl_gym.motion import coordinated_turn_displacement
+
+BASE_DIM = 8  # [p, v, b_p, b_v]: the layout initializers produce
+
+
+def _white_noise_blocks(dt: float, order: int) -> np.ndarray:
+    """Covariance per unit spectral density of a continuous white-noise (order-1)-th derivative model.
+
+    order 2: white acceleration on [p, v]; order 3: white jerk on [p, v, a].
+    """
+    if order == 2:
+        return np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+    return np.array([
+        [dt**5 / 20, dt**4 / 8, dt**3 / 6],
+        [dt**4 / 8, dt**3 / 3, dt**2 / 2],
+        [dt**3 / 6, dt**2 / 2, dt],
+    ])
+
+
+class MotionModel:
+    """A filter motion model: its state size, transition and process noise."""
+
+    name: str
+    dim: int
+
+    def __init__(self, config: FilterConfig):
+        self.config = config
+        self._noise_cache: dict[float, np.ndarray] = {}
+
+    def transition(self, states: np.ndarray, dt: float) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def _kinematic_noise(self, dt: float) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def process_noise(self, dt: float) -> np.ndarray:
+        if dt not in self._noise_cache:
+            q = np.zeros((self.dim, self.dim))
+            kinematic = self._kinematic_noise(dt)
+            q[: kinematic.shape[0], : kinematic.shape[0]] = kinematic
+            q[-2, -2] = self.config.range_bias_psd * dt
+            q[-1, -1] = self.config.rate_bias_psd * dt
+            self._noise_cache[dt] = q
+        return self._noise_cache[dt]
+
+    def embed(self, state: np.ndarray, covariance: np.ndarray, extra_sd: float) -> tuple[np.ndarray, np.ndarray]:
+        """Lift a base-layout state [p, v, b_p, b_v] (and covariance) into this model's layout.
+
+        The model's extra components (acceleration, turn rate) start at zero with sd ``extra_sd``.
+        """
+        extra = self.dim - BASE_DIM
+        index = np.r_[0:6, self.dim - 2, self.dim - 1]
+        x = np.zeros(self.dim)
+        x[index] = state
+        p = np.zeros((self.dim, self.dim))
+        p[np.ix_(index, index)] = covariance
+        p[6 : 6 + extra, 6 : 6 + extra] = np.eye(extra) * extra_sd**2
+        return x, p
+
+
+class ConstantVelocity(MotionModel):
+    name, dim = "cv", 8
+
+    def transition(self, states: np.ndarray, dt: float) -> np.ndarray:
+        out = states.copy()
+        out[..., 0:3] += dt * states[..., 3:6]
+        return out
+
+    def _kinematic_noise(self, dt: float) -> np.ndarray:
+        return np.kron(_white_noise_blocks(dt, 2), np.eye(3)) * self.config.acceleration_psd
+
+
+class ConstantAcceleration(MotionModel):
+    name, dim = "ca", 11
+
+    def transition(self, states: np.ndarray, dt: float) -> np.ndarray:
+        out = states.copy()
+        out[..., 0:3] += dt * states[..., 3:6] + 0.5 * dt**2 * states[..., 6:9]
+        out[..., 3:6] += dt * states[..., 6:9]
+        return out
+
+    def _kinematic_noise(self, dt: float) -> np.ndarray:
+        return np.kron(_white_noise_blocks(dt, 3), np.eye(3)) * self.config.jerk_psd
+
+
+class CoordinatedTurn(MotionModel):
+    """CTRV written in Cartesian velocity: the horizontal velocity turns at omega, its norm is kept."""
+
+    name, dim = "ctrv", 9
+
+    def transition(self, states: np.ndarray, dt: float) -> np.ndarray:
+        out = states.copy()
+        displacement, velocity = coordinated_turn_displacement(states[..., 3:6], states[..., 6], dt)
+        out[..., 0:3] += displacement
+        out[..., 3:6] = velocity
+        return out
+
+    def _kinematic_noise(self, dt: float) -> np.ndarray:
+        q = np.zeros((7, 7))
+        q[:6, :6] = np.kron(_white_noise_blocks(dt, 2), np.eye(3)) * self.config.acceleration_psd
+        q[6, 6] = self.config.turn_rate_psd * dt
+        return q
+
+
+MOTION_MODELS: dict[str, type[MotionModel]] = {m.name: m for m in (ConstantVelocity, ConstantAcceleration, CoordinatedTurn)}
+
+
+def make_motion_model(config: FilterConfig) -> MotionModel:
+    return MOTION_MODELS[config.motion_model](config)
+
+
+def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Mean and covariance weights of the 2n+1 Merwe scaled sigma points, and the spread n + lambda."""
+    lambda_ = alpha**2 * (n + kappa) - n
+    spread = n + lambda_
+    wm = np.full(2 * n + 1, 0.5 / spread)
+    wc = wm.copy()
+    wm[0] = lambda_ / spread
+    wc[0] = lambda_ / spread + (1 - alpha**2 + beta)
+    return wm, wc, spread
+
+
+def merwe_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> np.ndarray:
+    """Sigma points x, x + sqrt((n + lambda) P)_i, x - sqrt((n + lambda) P)_i as rows, shape (2n+1, n).
+
+    Raises ``numpy.linalg.LinAlgError`` when P is not positive definite.
+    """
+    root = np.linalg.cholesky(spread * covariance).T  # rows of the upper factor, as filterpy uses
+    return np.concatenate([x[None, :], x + root, x - root])
+
+
+class UnscentedKalmanFilter:
+    """UKF with Merwe scaled sigma points, vectorized over the sigma points.
+
+    ``model.transition(X, dt)`` and the ``hx`` given to :meth:`update` take all sigma points at once,
+    ``X`` of shape (2n+1, n). Notation follows filterpy (x, P, Q, R, K, S, Wm, Wc).
+    """
+
+    def __init__(self, model: MotionModel, alpha: float = 0.5, beta: float = 2.0, kappa: float = 0.0):
+        self.model = model
+        self.dim_x = model.dim
+        self.Wm, self.Wc, self.spread = merwe_weights(model.dim, alpha, beta, kappa)
+        self.x = np.zeros(model.dim)
+        self.P = np.eye(model.dim)
+        self.sigmas_f: np.ndarray | None = None
+        self.y = np.zeros(2)  # last innovation
+        self.S = np.eye(2)  # last innovation covariance
+
+    def initialize(self, x: np.ndarray, covariance: np.ndarray) -> None:
+        self.x = np.array(x, dtype=float)
+        self.P = np.array(covariance, dtype=float)
+        self.sigmas_f = None
+
+    def predict(self, dt: float) -> None:
+        sigmas = merwe_sigma_points(self.x, self.P, self.spread)
+        propagated = self.model.transition(sigmas, dt)
+        self.x = self.Wm @ propagated
+        deviation = propagated - self.x
+        self.P = (deviation.T * self.Wc) @ deviation + self.model.process_noise(dt)
+        self.sigmas_f = merwe_sigma_points(self.x, self.P, self.spread)
+
+    def update(self, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray]) -> None:
+        if self.sigmas_f is None:
+            raise RuntimeError("predict() must run before update()")
+        sigmas_h = hx(self.sigmas_f)
+        zp = self.Wm @ sigmas_h
+        dz = sigmas_h - zp
+        self.S = (dz.T * self.Wc) @ dz + R
+        cross = ((self.sigmas_f - self.x).T * self.Wc) @ dz
+        s = self.S
+        det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+        s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
+        gain = cross @ s_inv
+        self.y = z - zp
+        self.x = self.x + gain @ self.y
+        self.P = self.P - gain @ s @ gain.T
+        self.P = 0.5 * (self.P + self.P.T)
+
+    @property
+    def nis(self) -> float:
+        """Normalized innovation squared of the last update (chi-square, 2 degrees of freedom)."""
+        return float(self.y @ np.linalg.solve(self.S, self.y))

@@ -1,0 +1,178 @@
+"""Range-difference geometry: RD, RRD, their Jacobians, image sources and the two multipath models.
+
+Pure functions on numpy arrays. Positions are in metres, velocities in m/s, in the world frame (z up,
+surface at z = 0, bed at z = -D). Every function broadcasts over leading dimensions, so the same code
+serves one state and a whole set of sigma points: ``source`` may be ``(3,)`` or ``(N, 3)``.
+
+Conventions (SPEC section 2), with p_s the source, p_m the mobile and p_f the fixed hydrophone:
+
+* ``RD = |p_s - p_m| - |p_s - p_f|`` (metres); ``TDOA = RD / c`` is the arrival at the mobile
+  hydrophone minus the arrival at the fixed one.
+* ``RRD = (v_s - v_m) . u_m - (v_s - v_f) . u_f`` with ``u = (p_s - p_r) / |p_s - p_r|``: the difference of
+  the two range rates (m/s).
+* ``FDOA = f_fixed - f_mobile = (f0 / c) * RRD``: a receiver whose range grows hears a lower tone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+ZERO3 = np.zeros(3)
+
+
+def ranges(source: np.ndarray, receiver: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (m) and unit vector from ``receiver`` to ``source``."""
+    offset = source - receiver
+    distance = np.sqrt(np.einsum("...i,...i->...", offset, offset))
+    return distance, offset / distance[..., None]
+
+
+def range_rate(unit: np.ndarray, source_velocity: np.ndarray, receiver_velocity: np.ndarray) -> np.ndarray:
+    """Rate of change of the source-receiver distance, m/s (positive = opening)."""
+    return np.einsum("...i,...i->...", source_velocity - receiver_velocity, unit)
+
+
+def range_difference(source: np.ndarray, mobile: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """RD = |p_s - p_m| - |p_s - p_f|, metres."""
+    return ranges(source, mobile)[0] - ranges(source, fixed)[0]
+
+
+def range_rate_difference(
+    source: np.ndarray,
+    source_velocity: np.ndarray,
+    mobile: np.ndarray,
+    mobile_velocity: np.ndarray,
+    fixed: np.ndarray,
+    fixed_velocity: np.ndarray = ZERO3,
+) -> np.ndarray:
+    """RRD = d|p_s - p_m|/dt - d|p_s - p_f|/dt, m/s."""
+    _, unit_mobile = ranges(source, mobile)
+    _, unit_fixed = ranges(source, fixed)
+    return range_rate(unit_mobile, source_velocity, mobile_velocity) - range_rate(unit_fixed, source_velocity, fixed_velocity)
+
+
+def fdoa_from_rrd(range_rate_difference_mps: np.ndarray, frequency: float, sound_speed: float) -> np.ndarray:
+    """FDOA = f_fixed - f_mobile in Hz, from RRD in m/s (first order in v / c)."""
+    return frequency / sound_speed * range_rate_difference_mps
+
+
+def direct_jacobian(
+    source: np.ndarray,
+    source_velocity: np.ndarray,
+    mobile: np.ndarray,
+    mobile_velocity: np.ndarray,
+    fixed: np.ndarray,
+) -> np.ndarray:
+    """d[RD, RRD] / d[p_s, v_s] for the direct path: shape ``(..., 2, 6)``.
+
+    dRD/dp = u_m - u_f, dRD/dv = 0, dRRD/dv = u_m - u_f and
+    dRRD/dp = (I - u_m u_m^T)(v_s - v_m) / d_m - (I - u_f u_f^T) v_s / d_f.
+    """
+    d_m, u_m = ranges(source, mobile)
+    d_f, u_f = ranges(source, fixed)
+    rel_m = source_velocity - mobile_velocity
+    drrd_dp = (rel_m - u_m * range_rate(u_m, source_velocity, mobile_velocity)[..., None]) / d_m[..., None] - (
+        source_velocity - u_f * range_rate(u_f, source_velocity, ZERO3)[..., None]
+    ) / d_f[..., None]
+    gradient = u_m - u_f
+    shape = np.broadcast_shapes(gradient.shape, drrd_dp.shape)[:-1]
+    jac = np.zeros(shape + (2, 6))
+    jac[..., 0, :3] = gradient
+    jac[..., 1, :3] = drrd_dp
+    jac[..., 1, 3:] = gradient
+    return jac
+
+
+def image_sources(
+    source: np.ndarray, source_velocity: np.ndarray, water_depth: float
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Surface image (x, y, -z) and bed image (x, y, -2D - z) with their velocities (vx, vy, -vz)."""
+    mirror = np.array([1.0, 1.0, -1.0])
+    surface = source * mirror
+    bed = source * mirror - np.array([0.0, 0.0, 2.0 * water_depth])
+    mirrored_velocity = source_velocity * mirror
+    return (surface, mirrored_velocity), (bed, mirrored_velocity)
+
+
+def linear_multipath(
+    source: np.ndarray,
+    source_velocity: np.ndarray,
+    mobile: np.ndarray,
+    mobile_velocity: np.ndarray,
+    fixed: np.ndarray,
+    water_depth: float,
+    surface_reflection: float,
+    bed_reflection: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """First-order multipath model of the reference paper: ``(RD_mp, RRD_mp)``.
+
+    RD_mp = RD + a_surf * delta_surf + a_bed * delta_bed, where delta_* is the range difference of the
+    image source to the two receivers; RRD_mp is its time derivative (the same weights on the image
+    sources' range-rate differences).
+    """
+    rd = range_difference(source, mobile, fixed)
+    rrd = range_rate_difference(source, source_velocity, mobile, mobile_velocity, fixed)
+    for (image, image_velocity), weight in zip(image_sources(source, source_velocity, water_depth), (surface_reflection, bed_reflection)):
+        rd = rd + weight * range_difference(image, mobile, fixed)
+        rrd = rrd + weight * range_rate_difference(image, image_velocity, mobile, mobile_velocity, fixed)
+    return rd, rrd
+
+
+def _multipath_phase(
+    source: np.ndarray,
+    source_velocity: np.ndarray,
+    receiver: np.ndarray,
+    receiver_velocity: np.ndarray,
+    water_depth: float,
+    gains: tuple[float, float],
+    wavenumber: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Phase (rad) of the multipath factor M = S / S_direct at one receiver, and its rate (rad/s).
+
+    S = sum_k a_k / r_k exp(-j k r_k) over the direct path (a = 1) and the images, so
+    M = 1 + sum_images a_i (d / r_i) exp(-j k (r_i - d)).
+    """
+    direct, unit = ranges(source, receiver)
+    direct_rate = range_rate(unit, source_velocity, receiver_velocity)
+    factor = np.ones(np.shape(direct), dtype=complex)
+    factor_rate = np.zeros(np.shape(direct), dtype=complex)
+    for (image, image_velocity), gain in zip(image_sources(source, source_velocity, water_depth), gains):
+        image_range, image_unit = ranges(image, receiver)
+        image_rate = range_rate(image_unit, image_velocity, receiver_velocity)
+        term = gain * direct / image_range * np.exp(-1j * wavenumber * (image_range - direct))
+        factor = factor + term
+        log_rate = direct_rate / direct - image_rate / image_range - 1j * wavenumber * (image_rate - direct_rate)
+        factor_rate = factor_rate + term * log_rate
+    return np.angle(factor), np.imag(factor_rate / factor)
+
+
+def phasor_multipath(
+    source: np.ndarray,
+    source_velocity: np.ndarray,
+    mobile: np.ndarray,
+    mobile_velocity: np.ndarray,
+    fixed: np.ndarray,
+    water_depth: float,
+    surface_reflection: float,
+    bed_reflection: float,
+    wavenumber: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact narrowband model: the RD (m) and RRD (m/s) a tone front end measures with multipath.
+
+    Each receiver hears the phasor sum of the direct path and the surface and bed images,
+    ``a_k / r_k exp(-j 2 pi f0 r_k / c)``; the apparent RD is minus the phase difference of the two sums
+    divided by the wavenumber k = 2 pi f0 / c. It is returned continuous (unwrapped about the direct RD:
+    RD_app = RD + (phi_f - phi_m) / k with phi the phase of each receiver's multipath factor), and the
+    apparent RRD is its exact time derivative.
+    """
+    gains = (surface_reflection, bed_reflection)
+    phase_m, phase_rate_m = _multipath_phase(source, source_velocity, mobile, mobile_velocity, water_depth, gains, wavenumber)
+    phase_f, phase_rate_f = _multipath_phase(source, source_velocity, fixed, ZERO3, water_depth, gains, wavenumber)
+    rd = range_difference(source, mobile, fixed) + (phase_f - phase_m) / wavenumber
+    rrd = range_rate_difference(source, source_velocity, mobile, mobile_velocity, fixed) + (phase_rate_f - phase_rate_m) / wavenumber
+    return rd, rrd
+
+
+def wrap_to_period(value: np.ndarray | float, period: float) -> np.ndarray | float:
+    """Map to the principal interval [-period/2, period/2)."""
+    return (np.asarray(value) + 0.5 * period) % period - 0.5 * period

@@ -1,0 +1,97 @@
+"""Measurement models: what the world produces ([RD, RRD] with multipath) and what the filter assumes.
+
+``z = [RD, RRD]`` in metres and m/s. For a tone the RD is known only modulo one wavelength: the first
+value is wrapped to [-lambda/2, lambda/2) and every later one is unwrapped to the whole number of
+wavelengths nearest the previous unwrapped value, so the track carries a whole-period offset fixed at
+the episode's start; the estimator holds it in its range-difference bias ``b_p``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from aasl_gym import geometry
+from aasl_gym.config import WorldConfig
+
+
+@dataclass(frozen=True)
+class Propagation:
+    """What the multipath models need to know about the channel."""
+
+    water_depth: float  # m
+    surface_reflection: float
+    bed_reflection: float
+    wavenumber: float  # rad/m, 2 pi f0 / c
+
+    @classmethod
+    def from_config(cls, world: WorldConfig, frequency: float) -> "Propagation":
+        return cls(world.water_depth, world.surface_reflection, world.bed_reflection, 2 * np.pi * frequency / world.sound_speed)
+
+
+def direct_measurement(position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+    """Noise-free direct-path [RD, RRD], shape ``(..., 2)``."""
+    rd = geometry.range_difference(position, mobile, fixed)
+    rrd = geometry.range_rate_difference(position, velocity, mobile, mobile_velocity, fixed)
+    return np.stack([rd, rrd], axis=-1)
+
+
+def multipath_measurement(model: str, propagation: Propagation, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+    """[RD, RRD] under ``model``: ``none`` (direct path), ``linear`` (first-order) or ``phasor`` (exact tone)."""
+    if model == "none":
+        return direct_measurement(position, velocity, mobile, mobile_velocity, fixed)
+    p = propagation
+    if model == "linear":
+        rd, rrd = geometry.linear_multipath(position, velocity, mobile, mobile_velocity, fixed, p.water_depth, p.surface_reflection, p.bed_reflection)
+    elif model == "phasor":
+        rd, rrd = geometry.phasor_multipath(
+            position, velocity, mobile, mobile_velocity, fixed, p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber
+        )
+    else:
+        raise ValueError(f"unknown multipath model {model!r}; allowed: ['none', 'linear', 'phasor']")
+    return np.stack([rd, rrd], axis=-1)
+
+
+class Unwrapper:
+    """Whole-period unwrapping of a range-difference track (period = one wavelength, m)."""
+
+    def __init__(self, period: float | None):
+        self.period = period
+        self.previous: float | None = None
+
+    def reset(self) -> None:
+        self.previous = None
+
+    def __call__(self, range_difference: float) -> float:
+        if self.period is None:
+            return float(range_difference)
+        wrapped = float(geometry.wrap_to_period(range_difference, self.period))
+        if self.previous is None:
+            value = wrapped
+        else:
+            value = wrapped + self.period * np.round((self.previous - wrapped) / self.period)
+        self.previous = value
+        return value
+
+
+class GeometricSensor:
+    """z = h(true state) + Gaussian noise, with the tone's whole-period ambiguity (SPEC section 3).
+
+    With reflections on, the true [RD, RRD] is the phasor model's (what a tone front end measures).
+    """
+
+    def __init__(self, sd: np.ndarray, propagation: Propagation, reflections: bool, period: float | None):
+        self.sd = np.asarray(sd, dtype=float)
+        self.propagation = propagation
+        self.reflections = reflections
+        self.unwrapper = Unwrapper(period)
+
+    def reset(self) -> None:
+        self.unwrapper.reset()
+
+    def measure(self, rng: np.random.Generator, position, velocity, mobile, mobile_velocity, fixed, range_rate_bias: float = 0.0) -> np.ndarray:
+        model = "phasor" if self.reflections else "none"
+        truth = multipath_measurement(model, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
+        noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
+        return np.array([self.unwrapper(noisy[0]), noisy[1] + range_rate_bias])

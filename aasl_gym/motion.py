@@ -1,0 +1,201 @@
+"""Truth motion of the source, kinematics of the robot, and the robot's navigation error.
+
+Source motions (SPEC section 5): static, constant velocity (CV), constant acceleration (CA, speed capped
+at ``max_speed``) and constant turn rate and velocity (CTRV, a horizontal coordinated turn). An attacker
+has to stay close to the pod for its tone to harm the disks, so every motion is confined to the
+surveillance region (a vertical cylinder of ``region_radius`` about the origin, inside the water column
+with a margin): at its boundary the source reflects specularly and carries on with the same model.
+All positions in metres, velocities in m/s, accelerations in m/s^2, turn rates in rad/s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from aasl_gym.config import ReceiverConfig, SourceConfig, WorldConfig
+
+MOTION_KINDS = ("static", "cv", "ca", "ctrv")
+
+
+@dataclass(frozen=True)
+class SourceState:
+    kind: str  # static, cv, ca, ctrv
+    position: np.ndarray  # m
+    velocity: np.ndarray  # m/s
+    acceleration: np.ndarray  # m/s^2 (ca only; zero otherwise)
+    turn_rate: float  # rad/s about z (ctrv only)
+    max_speed: float  # m/s
+
+
+@dataclass(frozen=True)
+class Box:
+    """The region a body must stay in: a vertical cylinder ``|p_xy| <= radius``, ``z_min <= z <= z_max``."""
+
+    radius: float
+    z_min: float
+    z_max: float
+
+
+def source_region(world: WorldConfig, source: SourceConfig) -> Box:
+    margin = source.boundary_margin
+    return Box(world.region_radius - margin, -world.water_depth + margin, -margin)
+
+
+def sample_initial_position(rng: np.random.Generator, radius: float, region: Box) -> np.ndarray:
+    """Uniform in the ball of ``radius`` about the origin, restricted to ``region`` (rejection sampling)."""
+    while True:
+        point = rng.uniform(-radius, radius, size=3)
+        if point @ point <= radius**2 and region.z_min <= point[2] <= region.z_max and np.hypot(point[0], point[1]) <= region.radius:
+            return point
+
+
+def _direction_velocity(rng: np.random.Generator, speed: float, max_vertical_speed: float) -> np.ndarray:
+    heading = rng.uniform(-np.pi, np.pi)
+    vertical = rng.uniform(-1.0, 1.0) * min(max_vertical_speed, speed)
+    horizontal = np.sqrt(speed**2 - vertical**2)
+    return np.array([horizontal * np.cos(heading), horizontal * np.sin(heading), vertical])
+
+
+def sample_source(rng: np.random.Generator, kind: str, source: SourceConfig, world: WorldConfig) -> SourceState:
+    """Draw a source motion of ``kind`` (``mixed`` draws one of the four) with seeded random parameters."""
+    if kind == "mixed":
+        kind = MOTION_KINDS[int(rng.integers(len(MOTION_KINDS)))]
+    region = source_region(world, source)
+    position = sample_initial_position(rng, source.initial_radius, region)
+    zero = np.zeros(3)
+    if kind == "static":
+        return SourceState(kind, position, zero, zero, 0.0, source.max_speed)
+    speed = rng.uniform(*source.speed_range)
+    velocity = _direction_velocity(rng, speed, source.max_vertical_speed)
+    acceleration = zero
+    turn_rate = 0.0
+    if kind == "ca":
+        acceleration = _direction_velocity(rng, rng.uniform(*source.acceleration_range), 0.0)
+    elif kind == "ctrv":
+        turn_rate = rng.choice([-1.0, 1.0]) * rng.uniform(*source.turn_rate_range)
+    elif kind != "cv":
+        raise ValueError(f"unknown source motion {kind!r}; allowed: {list(MOTION_KINDS) + ['mixed']}")
+    return SourceState(kind, position, velocity, acceleration, turn_rate, source.max_speed)
+
+
+def coordinated_turn_displacement(velocity: np.ndarray, turn_rate: np.ndarray | float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact displacement (m) and final velocity (m/s) over ``dt`` of a horizontal turn at ``turn_rate``.
+
+    Broadcasts over leading dimensions of ``velocity`` (``(..., 3)``) and ``turn_rate`` (``(...)``).
+    Uses the series of sin(w dt)/w and (1 - cos(w dt))/w near w = 0, where the closed form loses digits.
+    """
+    angle = np.asarray(turn_rate) * dt
+    small = np.abs(angle) < 1e-4
+    safe = np.where(small, 1.0, angle)
+    sin_term = np.where(small, dt * (1 - angle**2 / 6), np.sin(safe) / safe * dt)
+    cos_term = np.where(small, dt * (angle / 2 - angle**3 / 24), (1 - np.cos(safe)) / safe * dt)
+    vx, vy, vz = velocity[..., 0], velocity[..., 1], velocity[..., 2]
+    cos_a, sin_a = np.cos(angle), np.sin(angle)
+    displacement = np.stack([sin_term * vx - cos_term * vy, cos_term * vx + sin_term * vy, vz * dt], axis=-1)
+    new_velocity = np.stack([cos_a * vx - sin_a * vy, sin_a * vx + cos_a * vy, vz], axis=-1)
+    return displacement, new_velocity
+
+
+def _reflect(position: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray, region: Box):
+    position, velocity, acceleration = position.copy(), velocity.copy(), acceleration.copy()
+    for bound, side in ((region.z_max, 1.0), (region.z_min, -1.0)):
+        if side * (position[2] - bound) > 0:
+            position[2] = 2 * bound - position[2]
+            velocity[2] = -velocity[2]
+            acceleration[2] = -acceleration[2]
+    horizontal = np.hypot(position[0], position[1])
+    if horizontal > region.radius:
+        normal = np.array([position[0], position[1], 0.0]) / horizontal
+        position[:2] *= (2 * region.radius - horizontal) / horizontal
+        velocity -= 2 * (velocity @ normal) * normal
+        acceleration -= 2 * (acceleration @ normal) * normal
+    return position, velocity, acceleration
+
+
+def advance_source(state: SourceState, dt: float, region: Box) -> SourceState:
+    """The source ``dt`` seconds later (exact within the model, specular reflection at the region)."""
+    if state.kind == "static":
+        return state
+    position, velocity, acceleration = state.position, state.velocity, state.acceleration
+    if state.kind == "ctrv":
+        displacement, velocity = coordinated_turn_displacement(velocity, state.turn_rate, dt)
+        position = position + displacement
+    else:
+        position = position + velocity * dt + 0.5 * acceleration * dt**2
+        velocity = velocity + acceleration * dt
+        speed = np.linalg.norm(velocity)
+        if state.kind == "ca" and speed > state.max_speed:
+            velocity = velocity * (state.max_speed / speed)
+            acceleration = np.zeros(3)
+    position, velocity, acceleration = _reflect(position, velocity, acceleration, region)
+    return replace(state, position=position, velocity=velocity, acceleration=acceleration)
+
+
+def receiver_region(world: WorldConfig, receiver: ReceiverConfig) -> Box:
+    return Box(receiver.region_radius, -world.water_depth + receiver.bed_clearance, -receiver.min_depth)
+
+
+def move_receiver(
+    position: np.ndarray,
+    command: np.ndarray,
+    dt: float,
+    max_speed: float,
+    region: Box,
+    keep_out_centre: np.ndarray,
+    keep_out_radius: float,
+    surface_depth: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Apply a velocity command (m/s) for ``dt`` seconds.
+
+    The command's norm is clipped to ``max_speed``; a surface vessel (``surface_depth`` given) ignores z
+    and holds its hydrophone at that depth. The new position is projected back into ``region`` and out
+    of the keep-out sphere. Returns the new position, the velocity actually achieved and whether a
+    limit was hit.
+    """
+    command = np.asarray(command, dtype=float)
+    if surface_depth is not None:
+        command = np.array([command[0], command[1], 0.0])
+    speed = np.linalg.norm(command)
+    if speed > max_speed:
+        command = command * (max_speed / speed)
+    target = position + command * dt
+    hit = False
+    if surface_depth is not None:
+        target[2] = -surface_depth
+    elif not region.z_min <= target[2] <= region.z_max:
+        target[2] = np.clip(target[2], region.z_min, region.z_max)
+        hit = True
+    horizontal = np.hypot(target[0], target[1])
+    if horizontal > region.radius:
+        target[:2] *= region.radius / horizontal
+        hit = True
+    offset = target - keep_out_centre
+    distance = np.linalg.norm(offset)
+    if distance < keep_out_radius:
+        direction = offset / distance if distance > 1e-9 else np.array([1.0, 0.0, 0.0])
+        target = keep_out_centre + direction * keep_out_radius
+        hit = True
+    return target, (target - position) / dt, hit
+
+
+@dataclass
+class NavigationError:
+    """What the robot's navigation reports: truth plus white noise, plus an optional random-walk drift."""
+
+    position_sd: float  # m, sigma_rov
+    velocity_sd: float  # m/s
+    drift_sd: float = 0.0  # m/sqrt(s)
+    drift: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self.drift = np.zeros(3)
+
+    def report(self, rng: np.random.Generator, position: np.ndarray, velocity: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        if self.drift is None:
+            self.reset()
+        if self.drift_sd > 0:
+            self.drift = self.drift + rng.normal(0.0, self.drift_sd * np.sqrt(dt), 3)
+        noise = rng.normal(0.0, 1.0, 6)
+        return position + self.drift + self.position_sd * noise[:3], velocity + self.velocity_sd * noise[3:]

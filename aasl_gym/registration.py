@@ -1,0 +1,23 @@
+"""All of AASL-Gym's environment ids, registered in one place (on ``import aasl_gym``)."""
+
+from __future__ import annotations
+
+from gymnasium.envs.registration import register, registry
+
+ENTRY_POINT = "aasl_gym.env:AASLEnv"
+
+# id -> the patrol pattern whose command the action is added to (None: the action is the command)
+ENV_IDS: dict[str, str | None] = {
+    "AASL-v0": None,
+    "AASL-Helix-v0": "helix",
+    "AASL-Spiral-v0": "spiral",
+    "AASL-Circle-v0": "circle",
+    "AASL-Lawnmower-v0": "lawnmower",
+}
+
+
+def register_envs() -> None:
+    for env_id, patrol in ENV_IDS.items():
+        if env_id not in registry:
+            # The env truncates itself at episode.duration, which a config may change.
+            register(id=env_id, entry_point=ENTRY_POINT, kwargs={"patrol": patrol})

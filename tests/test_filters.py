@@ -1,0 +1,107 @@
+"""The vectorized UKF against filterpy, against a linear Kalman filter, and the process models."""
+
+import numpy as np
+import pytest
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as FilterpyUKF
+from scipy.integrate import quad_vec, solve_ivp
+
+from aasl_gym.config import FilterConfig
+from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter
+from aasl_gym.measurements import direct_measurement
+
+FIXED = np.array([0.0, 0, -0.96])
+
+
+def hx_factory(mobile, mobile_velocity):
+    def hx(states):
+        return direct_measurement(states[..., 0:3], states[..., 3:6], mobile, mobile_velocity, FIXED) + states[..., -2:]
+    return hx
+
+
+@pytest.mark.parametrize("name", ["cv", "ca", "ctrv"])
+def test_matches_filterpy_step_for_step(name):
+    config = FilterConfig(motion_model=name, acceleration_psd=1e-3, jerk_psd=1e-4, turn_rate_psd=1e-4)
+    model = MOTION_MODELS[name](config)
+    ours = UnscentedKalmanFilter(model, alpha=0.5, beta=2.0, kappa=0.0)
+    points = MerweScaledSigmaPoints(model.dim, alpha=0.5, beta=2.0, kappa=0.0)
+    reference = FilterpyUKF(dim_x=model.dim, dim_z=2, dt=0.2, fx=lambda x, dt: model.transition(x[None], dt)[0], hx=None, points=points)
+    rng = np.random.default_rng(1)
+    x0 = np.zeros(model.dim)
+    x0[:6] = [8.0, -5, -10, 0.3, 0.2, 0]
+    if name == "ctrv":
+        x0[6] = 0.05
+    p0 = np.eye(model.dim) * 0.5
+    ours.initialize(x0, p0)
+    reference.x, reference.P, reference.Q = x0.copy(), p0.copy(), model.process_noise(0.2)
+    R = np.diag([0.05**2, 0.02**2])
+    for k in range(100):
+        angle = 0.1 * k
+        mobile = np.array([10 * np.cos(angle), 10 * np.sin(angle), -7.0])
+        mobile_velocity = np.array([-np.sin(angle), np.cos(angle), 0.0])
+        z = direct_measurement(np.array([8.0 + 0.06 * k, -5 + 0.04 * k, -10]), np.array([0.3, 0.2, 0]), mobile, mobile_velocity, FIXED)
+        z = z + rng.normal(0, [0.05, 0.02])
+        ours.predict(0.2)
+        ours.update(z, R, hx_factory(mobile, mobile_velocity))
+        reference.predict()
+        reference.update(z, R=R, hx=lambda x: hx_factory(mobile, mobile_velocity)(x[None])[0])
+        np.testing.assert_allclose(ours.x, reference.x, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(ours.P, reference.P, rtol=0, atol=1e-8)
+
+
+def test_equals_linear_kalman_filter_on_a_linear_model():
+    """With a linear measurement the unscented transform is exact: the UKF is the Kalman filter."""
+    model = MOTION_MODELS["cv"](FilterConfig(acceleration_psd=1e-2))
+    ukf = UnscentedKalmanFilter(model, alpha=0.7, beta=2.0, kappa=0.0)
+    H = np.zeros((2, 8))
+    H[0, 0], H[0, 6], H[1, 4], H[1, 7] = 1.0, 1.0, 1.0, 1.0
+    x, P = np.arange(8.0), np.eye(8) * 2.0
+    ukf.initialize(x, P)
+    F = np.eye(8)
+    F[0:3, 3:6] = 0.2 * np.eye(3)
+    Q, R = model.process_noise(0.2), np.diag([0.3, 0.1])
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        z = rng.normal(size=2)
+        ukf.predict(0.2)
+        ukf.update(z, R, lambda s: s @ H.T)
+        x, P = F @ x, F @ P @ F.T + Q
+        S = H @ P @ H.T + R
+        K = P @ H.T @ np.linalg.inv(S)
+        x, P = x + K @ (z - H @ x), P - K @ S @ K.T
+        np.testing.assert_allclose(ukf.x, x, atol=1e-9)
+        np.testing.assert_allclose(ukf.P, P, atol=1e-9)
+
+
+@pytest.mark.parametrize("name,order", [("cv", 2), ("ca", 3)])
+def test_process_noise_is_the_integral_of_white_noise(name, order):
+    """Q = int_0^T F(s) G q G^T F(s)^T ds for a white (order)-th derivative, per axis."""
+    psd = 0.7
+    model = MOTION_MODELS[name](FilterConfig(acceleration_psd=psd, jerk_psd=psd))
+    dt = 0.37
+
+    def integrand(s):
+        phi = np.array([[1, s, s**2 / 2], [0, 1, s], [0, 0, 1]])[:order, :order]
+        g = np.eye(order)[:, -1:]
+        return phi @ g @ g.T @ phi.T * psd
+
+    expected, _ = quad_vec(integrand, 0, dt)
+    q = model.process_noise(dt)
+    axis = [0, 3, 6][:order]
+    np.testing.assert_allclose(q[np.ix_(axis, axis)], expected, rtol=1e-10)
+
+
+def test_coordinated_turn_matches_the_ode():
+    model = MOTION_MODELS["ctrv"](FilterConfig())
+    x = np.array([1.0, 2, -5, 0.8, -0.4, 0.05, 0.12, 0, 0])
+    out = model.transition(x[None], 2.5)[0]
+
+    def rhs(_, y):
+        return [y[3], y[4], y[5], -x[6] * y[4], x[6] * y[3], 0.0]
+
+    sol = solve_ivp(rhs, (0, 2.5), x[:6], rtol=1e-11, atol=1e-12)
+    np.testing.assert_allclose(out[:6], sol.y[:, -1], atol=1e-8)
+    near_zero = x.copy()
+    near_zero[6] = 1e-9
+    straight = near_zero.copy()
+    straight[:3] += 2.5 * near_zero[3:6]
+    np.testing.assert_allclose(model.transition(near_zero[None], 2.5)[0][:6], straight[:6], atol=1e-7)

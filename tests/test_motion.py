@@ -1,0 +1,93 @@
+"""Truth motions against analytic motion; robot kinematics against its limits."""
+
+import numpy as np
+import pytest
+
+from aasl_gym.config import ReceiverConfig, SourceConfig, WorldConfig
+from aasl_gym.motion import (
+    Box, NavigationError, SourceState, advance_source, move_receiver, sample_source, source_region,
+)
+
+WORLD, SOURCE = WorldConfig(), SourceConfig()
+BIG = Box(1e6, -1e6, 1e6)  # no boundary: pure model motion
+
+
+def test_cv_moves_on_a_straight_line():
+    state = SourceState("cv", np.array([1.0, 2, -10]), np.array([0.5, -0.3, 0.05]), np.zeros(3), 0.0, 1.5)
+    for _ in range(50):
+        state = advance_source(state, 0.2, BIG)
+    np.testing.assert_allclose(state.position, [1 + 5, 2 - 3, -10 + 0.5], atol=1e-12)
+
+
+def test_ca_matches_closed_form_until_speed_cap():
+    a = np.array([0.01, 0, 0])
+    state = SourceState("ca", np.zeros(3), np.array([0.2, 0, 0]), a, 0.0, 1.5)
+    for _ in range(100):
+        state = advance_source(state, 0.2, BIG)
+    t = 20.0
+    np.testing.assert_allclose(state.position, [0.2 * t + 0.5 * 0.01 * t**2, 0, 0], atol=1e-10)
+    for _ in range(2000):
+        state = advance_source(state, 0.2, BIG)
+    assert np.linalg.norm(state.velocity) == pytest.approx(1.5)
+
+
+def test_ctrv_follows_a_circle():
+    omega, speed = 0.1, 1.0
+    state = SourceState("ctrv", np.zeros(3), np.array([speed, 0, 0]), np.zeros(3), omega, 1.5)
+    radius = speed / omega
+    for step in range(1, 200):
+        state = advance_source(state, 0.2, BIG)
+        angle = omega * 0.2 * step
+        np.testing.assert_allclose(state.position[:2], [radius * np.sin(angle), radius * (1 - np.cos(angle))], atol=1e-9)
+        assert np.linalg.norm(state.velocity) == pytest.approx(speed)
+
+
+@pytest.mark.parametrize("kind", ["static", "cv", "ca", "ctrv", "mixed"])
+def test_sources_start_near_the_pod_and_stay_in_the_region(kind):
+    region = source_region(WORLD, SOURCE)
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        state = sample_source(rng, kind, SOURCE, WORLD)
+        assert np.linalg.norm(state.position) <= SOURCE.initial_radius
+        assert -WORLD.water_depth < state.position[2] < 0
+        if state.kind != "static":
+            assert SOURCE.speed_range[0] - 1e-12 <= np.linalg.norm(state.velocity) <= SOURCE.max_speed + 1e-12
+        for _ in range(600):
+            state = advance_source(state, 0.2, region)
+            assert np.hypot(*state.position[:2]) <= region.radius + 1e-9
+            assert region.z_min - 1e-9 <= state.position[2] <= region.z_max + 1e-9
+
+
+def test_same_seed_same_source():
+    a = sample_source(np.random.default_rng(3), "mixed", SOURCE, WORLD)
+    b = sample_source(np.random.default_rng(3), "mixed", SOURCE, WORLD)
+    assert a.kind == b.kind and np.array_equal(a.position, b.position) and np.array_equal(a.velocity, b.velocity)
+
+
+def test_receiver_speed_limit_and_keep_out():
+    region = Box(60.0, -58.0, -1.0)
+    centre = np.array([0.0, 0, -0.96])
+    position, velocity, hit = move_receiver(np.array([10.0, 0, -5]), np.array([10.0, 0, 0]), 0.2, 1.5, region, centre, 3.0)
+    assert np.linalg.norm(velocity) == pytest.approx(1.5) and not hit
+    position, hits = np.array([4.0, 0, -3]), []
+    for _ in range(20):
+        position, _, hit = move_receiver(position, np.array([-1.5, 0, 0]), 0.2, 1.5, region, centre, 3.0)
+        hits.append(hit)
+        assert np.linalg.norm(position - centre) >= 3.0 - 1e-9
+    assert any(hits)
+    position, _, hit = move_receiver(np.array([10.0, 0, -1.1]), np.array([0, 0, 1.5]), 0.2, 1.5, region, centre, 3.0)
+    assert position[2] == pytest.approx(-1.0) and hit
+
+
+def test_surface_vessel_ignores_z():
+    region = Box(60.0, -58.0, -0.5)
+    position, velocity, _ = move_receiver(np.array([10.0, 0, -1]), np.array([0.0, 1, -1]), 0.2, 1.5, region, np.zeros(3), 3.0, surface_depth=1.0)
+    assert position[2] == -1.0 and velocity[2] == 0.0
+
+
+def test_navigation_error_statistics():
+    nav = NavigationError(position_sd=0.1, velocity_sd=0.04)
+    rng = np.random.default_rng(0)
+    errors = np.array([np.concatenate(nav.report(rng, np.zeros(3), np.zeros(3), 0.2)) for _ in range(20000)])
+    np.testing.assert_allclose(errors[:, :3].std(axis=0), 0.1, rtol=0.05)
+    np.testing.assert_allclose(errors[:, 3:].std(axis=0), 0.04, rtol=0.05)
