@@ -1,0 +1,100 @@
+"""Speed of the estimation pipeline on one core: UKF predict+update and env steps per second.
+
+    python benchmarks/bench_speed.py [--repeats 7]
+
+Prints the median over repeats. Goals (issue 2): UKF predict+update <= 0.1 ms (the reference paper
+reports 0.49 ms) and >= 5,000 env steps/s in geometric mode. filterpy's UKF on the same model is timed
+beside ours, so the ratio holds however fast the machine is.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as FilterpyUKF  # noqa: E402
+
+import aasl_gym  # noqa: E402,F401
+from aasl_gym.config import FilterConfig  # noqa: E402
+from aasl_gym.filters import ConstantVelocity, UnscentedKalmanFilter  # noqa: E402
+from aasl_gym.measurements import direct_measurement  # noqa: E402
+
+FIXED = np.array([0.0, 0, -0.96])
+R = np.diag([0.05**2, 0.02**2])
+
+
+def measurement_sequence(n: int):
+    angles = 0.02 * np.arange(n)
+    mobile = np.stack([10 * np.cos(angles), 10 * np.sin(angles), np.full(n, -7.0)], -1)
+    velocity = np.stack([-np.sin(angles), np.cos(angles), np.zeros(n)], -1)
+    z = direct_measurement(np.array([8.0, -5, -10]), np.zeros(3), mobile, velocity, FIXED)
+    return z + np.random.default_rng(0).normal(0, [0.05, 0.02], z.shape), mobile, velocity
+
+
+def time_ours(n: int) -> float:
+    model = ConstantVelocity(FilterConfig())
+    ukf = UnscentedKalmanFilter(model)
+    ukf.initialize(np.array([7.0, -4, -9, 0, 0, 0, 0, 0]), np.eye(8))
+    z, mobile, velocity = measurement_sequence(n)
+    start = time.perf_counter()
+    for k in range(n):
+        m, v = mobile[k], velocity[k]
+        ukf.predict(0.2)
+        ukf.update(z[k], R, lambda s: direct_measurement(s[:, :3], s[:, 3:6], m, v, FIXED) + s[:, -2:])
+    return (time.perf_counter() - start) / n
+
+
+def time_filterpy(n: int) -> float:
+    model = ConstantVelocity(FilterConfig())
+    points = MerweScaledSigmaPoints(8, alpha=0.5, beta=2.0, kappa=0.0)
+    ukf = FilterpyUKF(dim_x=8, dim_z=2, dt=0.2, fx=lambda x, dt: model.transition(x[None], dt)[0], hx=None, points=points)
+    ukf.x, ukf.P, ukf.Q = np.array([7.0, -4, -9, 0, 0, 0, 0, 0]), np.eye(8), model.process_noise(0.2)
+    z, mobile, velocity = measurement_sequence(n)
+    start = time.perf_counter()
+    for k in range(n):
+        m, v = mobile[k], velocity[k]
+        ukf.predict()
+        ukf.update(z[k], R=R, hx=lambda x: direct_measurement(x[:3], x[3:6], m, v, FIXED) + x[-2:])
+    return (time.perf_counter() - start) / n
+
+
+def env_steps_per_second(env_id: str, episodes: int, **kwargs) -> float:
+    env = gym.make(env_id, **kwargs)
+    steps, start = 0, time.perf_counter()
+    for seed in range(episodes):
+        env.reset(seed=seed)
+        done = False
+        while not done:
+            *_, terminated, truncated, _ = env.step(np.zeros(3))
+            done = terminated or truncated
+            steps += 1
+    return steps / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--episodes", type=int, default=2, help="episodes per env timing")
+    args = parser.parse_args()
+    ours = statistics.median(time_ours(2000) for _ in range(args.repeats))
+    reference = statistics.median(time_filterpy(500) for _ in range(args.repeats))
+    print(f"UKF predict+update (8-state CV): ours {ours * 1e3:.3f} ms, filterpy {reference * 1e3:.3f} ms, "
+          f"ratio {reference / ours:.1f}x   [goal <= 0.1 ms]")
+    for label, kwargs in (
+        ("free field, direct-path filter", dict(reflections=False, multipath="none", source_motion="static")),
+        ("free field, direct-path filter, cv source", dict(reflections=False, multipath="none", source_motion="cv")),
+        ("reflections on, phasor filter (default)", dict(source_motion="cv")),
+    ):
+        rate = statistics.median(env_steps_per_second("AASL-Helix-v0", args.episodes, **kwargs) for _ in range(max(1, args.repeats // 2)))
+        print(f"env steps/s, geometric, {label}: {rate:,.0f}   [goal >= 5,000]")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,104 @@
+"""Train a Stable-Baselines3 policy on an AASL-Gym environment.
+
+    python train.py --algo ppo [--env AASL-v0] [--config FILE] [--timesteps N] [--n-envs K] [--seed S] [--out DIR]
+
+Writes DIR/model.zip, DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints
+under DIR/checkpoints/ and, when TensorBoard is installed, logs under DIR/tb/. Every file is written
+atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import yaml
+
+from aasl_gym.config import ConfigError, load_config, save_config
+from aasl_gym.io import atomic_write, atomic_write_text
+from aasl_gym.registration import ENV_IDS
+
+ROOT = Path(__file__).resolve().parent
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    from agents.sb3 import ALGORITHMS
+
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--algo", choices=ALGORITHMS, default="ppo")
+    parser.add_argument("--env", choices=sorted(ENV_IDS), default="AASL-v0")
+    parser.add_argument("--config", type=Path, default=ROOT / "configs" / "default.yaml", help="env config (YAML)")
+    parser.add_argument("--hyperparameters", type=Path, default=ROOT / "configs" / "training.yaml")
+    parser.add_argument("--timesteps", type=int, default=None, help="default: the schedule in --hyperparameters")
+    parser.add_argument("--n-envs", type=int, default=None)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=None, help="default: runs/ALGO-SEED")
+    args = parser.parse_args(argv)
+    if args.timesteps is not None and args.timesteps < 1:
+        parser.error(f"--timesteps must be >= 1, got {args.timesteps}")
+    if args.n_envs is not None and args.n_envs < 1:
+        parser.error(f"--n-envs must be >= 1, got {args.n_envs}")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        config = load_config(args.config)
+        hyper = yaml.safe_load(args.hyperparameters.read_text()) if args.hyperparameters.is_file() else None
+    except ConfigError as exc:
+        print(f"error: --config: {exc}", file=sys.stderr)
+        return 2
+    if not isinstance(hyper, dict) or "schedule" not in hyper or args.algo not in hyper:
+        print(f"error: --hyperparameters: {args.hyperparameters} needs a 'schedule' section and a '{args.algo}' section", file=sys.stderr)
+        return 2
+    if config.measurement.mode == "signal":
+        print("error: --config: measurement.mode 'signal' is not implemented yet; use geometric", file=sys.stderr)
+        return 2
+    schedule = hyper["schedule"]
+    timesteps = args.timesteps or int(schedule["timesteps"])
+    n_envs = args.n_envs or int(schedule["n_envs"])
+    out = args.out or ROOT / "runs" / f"{args.algo}-{args.seed}"
+    out.mkdir(parents=True, exist_ok=True)
+
+    import gymnasium as gym
+    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    from agents.sb3 import algorithm_class
+
+    env_id = f"aasl_gym:{args.env}"
+    env_kwargs = {"config": config}
+    vec_cls = SubprocVecEnv if n_envs > 1 else None
+    envs = make_vec_env(env_id, n_envs=n_envs, seed=args.seed, env_kwargs=env_kwargs, vec_env_cls=vec_cls)
+    eval_env = make_vec_env(env_id, n_envs=1, seed=int(schedule["eval_seed"]), env_kwargs=env_kwargs)
+    try:
+        import tensorboard  # noqa: F401
+
+        tensorboard_log = str(out / "tb")
+    except ImportError:
+        tensorboard_log = None
+    cls = algorithm_class(args.algo)
+    policy = "MlpLstmPolicy" if args.algo == "recurrent-ppo" else "MlpPolicy"
+    model = cls(policy, envs, seed=args.seed, verbose=0, tensorboard_log=tensorboard_log, device="auto", **hyper[args.algo])
+    callbacks = [
+        CheckpointCallback(max(1, int(schedule["checkpoint_every"]) // n_envs), str(out / "checkpoints"), name_prefix=args.algo),
+        EvalCallback(eval_env, n_eval_episodes=int(schedule["eval_episodes"]), eval_freq=max(1, int(schedule["eval_every"]) // n_envs),
+                     best_model_save_path=str(out / "best"), log_path=str(out / "eval"), deterministic=True, verbose=0),
+    ]
+    print(f"training {args.algo} on {args.env} for {timesteps} steps with {n_envs} envs -> {out}")
+    model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=True)
+    atomic_write(out / "model.zip", lambda tmp: model.save(tmp))
+    save_config(config, out / "config.yaml")
+    atomic_write_text(out / "hyperparameters.yaml", yaml.safe_dump({"algo": args.algo, "env": args.env, "seed": args.seed,
+                                                                      "timesteps": timesteps, "n_envs": n_envs, **{args.algo: hyper[args.algo]}}))
+    envs.close()
+    eval_env.close()
+    print(f"saved {out / 'model.zip'} and {out / 'config.yaml'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
