@@ -46,9 +46,16 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     try:
         config = load_config(args.config)
-        hyper = yaml.safe_load(args.hyperparameters.read_text()) if args.hyperparameters.is_file() else None
     except ConfigError as exc:
         print(f"error: --config: {exc}", file=sys.stderr)
+        return 2
+    if not args.hyperparameters.is_file():
+        print(f"error: --hyperparameters: no file at {args.hyperparameters}", file=sys.stderr)
+        return 2
+    try:
+        hyper = yaml.safe_load(args.hyperparameters.read_text())
+    except yaml.YAMLError as exc:
+        print(f"error: --hyperparameters: {args.hyperparameters} is not valid YAML ({exc})", file=sys.stderr)
         return 2
     if not isinstance(hyper, dict) or "schedule" not in hyper or args.algo not in hyper:
         print(f"error: --hyperparameters: {args.hyperparameters} needs a 'schedule' section and a '{args.algo}' section", file=sys.stderr)
@@ -62,7 +69,6 @@ def main(argv=None) -> int:
     out = args.out or ROOT / "runs" / f"{args.algo}-{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
 
-    import gymnasium as gym
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import SubprocVecEnv
