@@ -91,7 +91,8 @@ class SourceConfig:
     acceleration_range: tuple[float, float] = (0.002, 0.01)  # m/s^2, ca
     turn_rate_range: tuple[float, float] = (0.02, 0.1)  # rad/s, ctrv, sign drawn at random
     max_vertical_speed: float = 0.1  # m/s
-    boundary_margin: float = 2.0  # m, the source keeps this far from surface, bed and region edge
+    boundary_margin: float = 2.0  # m, the source keeps this far from surface and bed (and region edge if confined)
+    confined: bool = False  # reflect at the surveillance region's edge; by default a moving source may leave it
     range_rate_bias: float = 0.0  # m/s, true b_v (clock-rate offset between the two recorders)
     source_level_db: float = 140.0  # dB re 1 uPa at 1 m, in the receiver band
 
@@ -108,6 +109,7 @@ class SourceConfig:
         _non_negative(self.max_vertical_speed, "source.max_vertical_speed")
         _non_negative(self.boundary_margin, "source.boundary_margin")
         _check(math.isfinite(self.range_rate_bias), "source.range_rate_bias", "must be finite")
+        _check(isinstance(self.confined, bool), "source.confined", f"must be true or false, got {self.confined!r}")
 
 
 @dataclass(frozen=True)
@@ -116,7 +118,7 @@ class ReceiverConfig:
 
     kind: str = "auv"  # auv, or surface (a surface vessel ignores the z command)
     max_speed: float = 1.5  # m/s, the action box [-1, 1] maps to this
-    start_position: tuple[float, float, float] = (10.0, 0.0, -7.0)  # m
+    start_position: tuple[float, float, float] = (15.0, 0.0, -7.0)  # m
     keep_out_radius: float = 3.0  # m, sphere around the fixed hydrophone the robot never enters
     min_depth: float = 1.0  # m below the surface
     bed_clearance: float = 2.0  # m above the bed
@@ -181,6 +183,7 @@ class FilterConfig:
     divergence_nis: float = 8.0  # mean NIS over the window above this (2 expected) = diverged
     reinit_window: float = 10.0  # s of recent measurements LC-MAP uses to re-initialize
     reinit_cooldown: float = 5.0  # s after a (re)initialization before divergence is tested again
+    prune_log_ratio: float = 12.0  # a hypothesis whose log-likelihood trails the best's by this is dropped
 
     def __post_init__(self) -> None:
         _choice(self.motion_model, FILTER_MODELS, "filter.motion_model")
@@ -194,6 +197,7 @@ class FilterConfig:
         _positive(self.divergence_nis, "filter.divergence_nis")
         _positive(self.reinit_window, "filter.reinit_window")
         _non_negative(self.reinit_cooldown, "filter.reinit_cooldown")
+        _positive(self.prune_log_ratio, "filter.prune_log_ratio")
 
 
 @dataclass(frozen=True)
@@ -209,13 +213,19 @@ class InitializerConfig:
     position_sd: float = 15.0  # m, prior / non-lcmap initial position spread
     range_bias_sd: float = 0.05  # m, initial sd of b_p once the whole-period offset is chosen
     rate_bias_sd: float = 0.02  # m/s, initial sd of b_v
-    covariance_inflation: float = 25.0  # lcmap's local-information covariance is multiplied by this
+    covariance_inflation: float = 1.0  # lcmap's local-information covariance is multiplied by this
+    hypotheses: int = 12  # lcmap: distinct candidates (best of each sheet first) that each start a UKF; 1 = one filter
+    reseed_interval: float = 5.0  # s; after an lcmap start, lcmap re-runs on the growing window this often while uncertain (0 = never)
+    reseed_until: float = 30.0  # s, longest such window; no re-seeding after it
 
     def __post_init__(self) -> None:
         _choice(self.name, INITIALIZERS, "initializer.name")
         _positive(self.burst_duration, "initializer.burst_duration")
         _check(self.candidate_directions >= 8, "initializer.candidate_directions", "must be >= 8")
-        _non_negative(self.information_weight, "initializer.information_weight")
+        _check(math.isfinite(self.information_weight), "initializer.information_weight", "must be finite")
+        _non_negative(self.reseed_interval, "initializer.reseed_interval")
+        _non_negative(self.reseed_until, "initializer.reseed_until")
+        _check(isinstance(self.hypotheses, int) and self.hypotheses >= 1, "initializer.hypotheses", f"must be an integer >= 1, got {self.hypotheses!r}")
         for name in ("velocity_prior_sd", "max_source_speed", "position_sd", "range_bias_sd", "rate_bias_sd"):
             _positive(getattr(self, name), f"initializer.{name}")
         _check(self.covariance_inflation >= 1, "initializer.covariance_inflation", "must be >= 1")
@@ -251,13 +261,13 @@ class EpisodeConfig:
 
 @dataclass(frozen=True)
 class PatrolConfig:
-    """Scripted patrol geometry, centred on the fixed hydrophone (chosen by a sweep, see configs/)."""
+    """Scripted patrol geometry, centred on the fixed hydrophone (helix chosen by the sweep in reports/patrol_sweep/)."""
 
     speed: float = 1.0  # m/s along the path
-    radius: float = 10.0  # m, helix / circle radius
+    radius: float = 15.0  # m, helix / circle radius
     depth_min: float = 2.0  # m, helix depth oscillates between depth_min and depth_max
     depth_max: float = 12.0  # m
-    depth_period: float = 40.0  # s, period of the helix's depth oscillation
+    depth_period: float = 30.0  # s, period of the helix's depth oscillation
     spiral_radius_min: float = 4.0  # m, spiral starts just outside the keep-out zone
     spiral_radius_max: float = 25.0  # m
     spiral_period: float = 120.0  # s, out and back

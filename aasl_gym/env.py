@@ -16,7 +16,7 @@ from aasl_gym.estimator import SourceTracker
 from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.measurements import GeometricSensor, Propagation, direct_measurement
-from aasl_gym.motion import NavigationError, advance_source, move_receiver, receiver_region, sample_source, source_region
+from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 
 # Keyword arguments of gym.make / AASLEnv that override one config field each.
@@ -91,7 +91,11 @@ class AASLEnv(gym.Env):
     channels yield a range difference (RD, m) and a range-rate difference (RRD, m/s); an unscented
     Kalman filter started by the LC-MAP initializer tracks the source in 3-D. The robot's path decides
     how observable the source is, and so how fast the estimate converges. See ``shared/SPEC.md`` for
-    the physics and sign conventions.
+    the physics and sign conventions. Each source follows its motion model exactly (only surface and
+    bed reflect it), so a fast one can leave the surveillance region within an episode; set
+    ``source.confined`` for a source that turns back at the region's edge. LC-MAP starts a bank of
+    UKFs, one per likely whole-period sheet, and re-runs on its growing window while the estimate is
+    uncertain; the reported estimate is the likeliest filter's (``aasl_gym.estimator``).
 
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: a velocity command scaled by ``receiver.max_speed`` (1.5 m/s). In
@@ -189,6 +193,7 @@ class AASLEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self.observation_space = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, (OBSERVATION_SIZE,), np.float32)
         self.source_region = source_region(cfg.world, cfg.source)
+        self.motion_region = motion_region(cfg.world, cfg.source)
         self.receiver_region = receiver_region(cfg.world, cfg.receiver)
         self.patrol_geometry = PatrolGeometry(self.fixed, np.asarray(cfg.receiver.start_position, dtype=float))
         measurement_sd = np.array([cfg.measurement.range_difference_sd, cfg.measurement.range_rate_difference_sd])
@@ -259,7 +264,7 @@ class AASLEnv(gym.Env):
             self.receiver_position, self._command(action), dt, cfg.receiver.max_speed, self.receiver_region,
             self.fixed, cfg.receiver.keep_out_radius, self.surface_depth,
         )
-        self.source = advance_source(self.source, dt, self.source_region)
+        self.source = advance_source(self.source, dt, self.motion_region)
         self._time = (self._steps + 1) * dt
         self._steps += 1
 

@@ -1,29 +1,38 @@
-"""The source tracker: burst collection, initialization, the UKF, divergence detection and re-start.
+"""The source tracker: burst collection, initialization, a bank of UKFs, divergence detection and re-start.
 
 One call of :meth:`SourceTracker.step` per measurement. Until the initialization burst is complete the
-tracker only collects; then the chosen initializer starts the UKF. A filter that diverges - mean NIS over
-a window far above its expected value of 2, a covariance that is no longer positive definite, or an
-estimate far outside the physically possible region - is re-started with LC-MAP on the most recent
-measurements; the step reports it. The filter never raises into the episode.
+tracker only collects; then the chosen initializer starts the filter. LC-MAP returns several
+hypotheses - the best candidate of every feasible whole-period sheet, since a 2 s burst rarely tells
+the sheets apart - and each starts a UKF of its own. Every update multiplies a hypothesis's weight by
+its innovation likelihood N(y; 0, S); one that trails the best by ``filter.prune_log_ratio`` (natural
+log) is dropped, and so is one whose mean NIS over ``divergence_window`` exceeds ``divergence_nis``, whose
+covariance stops being positive definite, or whose estimate leaves the physically possible region.
+The estimate reported is the likeliest hypothesis's. Two seconds seldom show *where* on its sheet the
+source is, so after an LC-MAP start LC-MAP re-runs every ``initializer.reseed_interval`` on the growing
+window (up to ``reseed_until``) while the best position sd exceeds the convergence threshold; its fresh
+hypotheses and the running filters are weighed on that window's chi-square and the best
+``initializer.hypotheses`` continue. When no hypothesis is left the tracker re-starts with LC-MAP on
+the most recent ``reinit_window`` of measurements, and the step says so. The filter never raises into
+the episode.
 """
 
 from __future__ import annotations
 
 import logging
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from aasl_gym.config import EnvConfig
 from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model
-from aasl_gym.initializers import Burst, LCMAPInitializer, make_initializer
+from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer
 from aasl_gym.measurements import Propagation, multipath_measurement
 from aasl_gym.motion import Box
 
 logger = logging.getLogger(__name__)
 
-EXTRA_STATE_SD = {"cv": 0.0, "ca": 0.02, "ctrv": 0.05}  # initial sd of acceleration (m/s^2) / turn rate (rad/s)
+EXTRA_STATE_SD = {"cv": 0.0, "ca": 0.02, "ctrv": 0.1}  # initial sd of acceleration (m/s^2) / turn rate (rad/s)
 
 
 @dataclass
@@ -34,6 +43,14 @@ class TrackerOutput:
     innovation_sd: np.ndarray  # (2,), sqrt(diag S)
 
 
+@dataclass
+class Hypothesis:
+    ukf: UnscentedKalmanFilter
+    log_weight: float  # log likelihood of the data since its start, relative to the best hypothesis
+    started: float  # s, when this hypothesis was (re)started
+    nis: deque  # recent normalized innovations squared
+
+
 class SourceTracker:
     def __init__(self, config: EnvConfig, region: Box, noise_covariance: np.ndarray):
         self.config = config
@@ -42,7 +59,6 @@ class SourceTracker:
         f = config.filter
         self.propagation = Propagation.from_config(config.world, config.source.frequency)
         self.model = make_motion_model(f)
-        self.ukf = UnscentedKalmanFilter(self.model, f.alpha, f.beta, f.kappa)
         self.initializer = make_initializer(config.initializer.name, config.initializer, region)
         self.reinitializer = LCMAPInitializer(config.initializer, region)
         self.wavelength = config.wavelength if config.source.waveform == "tone" else None
@@ -50,16 +66,22 @@ class SourceTracker:
         rate = config.measurement.rate
         self.burst_length = max(1, int(round(config.initializer.burst_duration * rate)))
         self.reinit_length = max(2, int(round(f.reinit_window * rate)))
-        self.nis_window = deque(maxlen=max(1, int(round(f.divergence_window * rate))))
+        ini = config.initializer
+        self.reseed_length = int(round(ini.reseed_until * rate)) + 1 if ini.reseed_interval > 0 else 0
+        self.base_index = np.r_[0:6, self.model.dim - 2, self.model.dim - 1]  # [p, v, b_p, b_v] in the model's state
+        self.nis_length = max(1, int(round(f.divergence_window * rate)))
         self.reset()
 
     def reset(self) -> None:
-        self.history: deque = deque(maxlen=max(self.burst_length, self.reinit_length))
+        self.history: deque = deque(maxlen=max(self.burst_length, self.reinit_length, self.reseed_length))
+        self.bank: list[Hypothesis] = []
         self.initialized = False
-        self.time_started = np.nan
+        self.first_time = np.nan
         self.last_time = np.nan
         self.reinitializations = 0
-        self.nis_window.clear()
+        self.last_reseed = np.nan
+        self.reseeding = False  # an LC-MAP start keeps re-running LC-MAP on its growing window
+        self.window_start = np.nan  # s, first measurement of that window
 
     def measurement_function(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
         return multipath_measurement(self.config.filter.multipath, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
@@ -76,33 +98,116 @@ class SourceTracker:
         times, z, positions, velocities = (np.array(column) for column in zip(*rows))
         return Burst(times, z, positions, velocities, self.fixed, self.noise_covariance, self.wavelength, self.measurement_function)
 
-    def _start(self, initializer, length: int, rng: np.random.Generator) -> None:
-        estimate = initializer(self._burst(length), rng)
-        extra_sd = EXTRA_STATE_SD[self.model.name]
-        x, covariance = self.model.embed(estimate.state, estimate.covariance, extra_sd)
-        self.ukf.initialize(x, covariance)
-        self.initialized = True
-        self.time_started = self.history[-1][0]
-        self.nis_window.clear()
+    def _reachable(self, time: float) -> Box:
+        """Where the source can be at ``time``: the start region grown by the fastest plausible travel."""
+        growth = self.config.initializer.max_source_speed * (time - self.first_time)
+        return replace(self.region, radius=self.region.radius + growth)
 
-    def _diverged(self, time: float) -> bool:
-        if not np.all(np.isfinite(self.ukf.x)):
+    def _start(self, initializer, length: int, rng: np.random.Generator) -> None:
+        burst = self._burst(length)
+        estimate = initializer(burst, rng)
+        self.reseeding = isinstance(initializer, LCMAPInitializer) and self.reseed_length > 0
+        self.window_start = burst.times[0]
+        extra_sd = EXTRA_STATE_SD[self.model.name]
+        time = self.history[-1][0]
+        self.bank = []
+        for state, covariance, log_weight in zip(estimate.states, estimate.covariances, estimate.log_weights):
+            ukf = UnscentedKalmanFilter(self.model, self.config.filter.alpha, self.config.filter.beta, self.config.filter.kappa)
+            ukf.initialize(*self.model.embed(state, covariance, extra_sd))
+            self.bank.append(Hypothesis(ukf, float(log_weight), time, deque(maxlen=self.nis_length)))
+        self.initialized = True
+        self.last_reseed = time
+
+    def _reseed_due(self, time: float) -> bool:
+        ini = self.config.initializer
+        return (
+            self.reseeding
+            and time - self.window_start <= ini.reseed_until + 1e-9
+            and time - self.last_reseed >= ini.reseed_interval - 1e-9
+            and np.sqrt(np.trace(self.ukf.P[0:3, 0:3])) > self.config.episode.convergence_threshold
+        )
+
+    def _window_chi_square(self, burst: Burst, states: np.ndarray) -> np.ndarray:
+        """Chi-square of ``burst`` for model states (H, dim) given at its last time, each run back
+        along its own motion model: puts running filters and fresh candidates on one scale."""
+        lags = burst.times - burst.times[-1]  # <= 0
+        trajectory = np.stack([self.model.transition(states, lag) for lag in lags], axis=1)  # (H, K, dim)
+        predicted = self.measurement_function(
+            trajectory[..., 0:3], trajectory[..., 3:6], burst.receiver_positions[None], burst.receiver_velocities[None], self.fixed
+        ) + trajectory[..., -2:]
+        whitened = (burst.measurements[None] - predicted) @ np.linalg.cholesky(np.linalg.inv(burst.noise_covariance))
+        velocity_prior = np.sum(states[:, 3:6] ** 2, axis=1) / self.config.initializer.velocity_prior_sd**2
+        return np.sum(whitened**2, axis=(1, 2)) + velocity_prior
+
+    def _reseed(self, time: float, rng: np.random.Generator) -> None:
+        """Run LC-MAP on the window since the last LC-MAP start; its hypotheses compete with the filters.
+
+        Two seconds rarely show where on its sheet the source lies, so the first bank often has no
+        hypothesis near the truth; a longer window does. Running filters and fresh candidates are
+        weighed on the same window (its chi-square); near-duplicates on one sheet keep the better.
+        """
+        self.last_reseed = time
+        burst = self._burst(sum(1 for row in self.history if row[0] >= self.window_start))
+        self.reinitializer.region = self._reachable(time)
+        fresh = self.reinitializer(burst, rng)
+        extra_sd = EXTRA_STATE_SD[self.model.name]
+        candidates = [(h.ukf.x, h.ukf.P) for h in self.bank]
+        candidates += [self.model.embed(state, covariance, extra_sd) for state, covariance in zip(fresh.states, fresh.covariances)]
+        states = np.array([x for x, _ in candidates])
+        base = states[:, self.base_index]
+        chi_square = self._window_chi_square(burst, states)
+        order = [i for i in np.argsort(chi_square, kind="stable") if np.isfinite(chi_square[i])]
+        kept = distinct_hypotheses(order, base[:, :3], base[:, 6], self.config.initializer.hypotheses, self.reinitializer.separation, self.wavelength)
+        if not kept:
+            return
+        f = self.config.filter
+        self.bank = []
+        for i in kept:
+            ukf = UnscentedKalmanFilter(self.model, f.alpha, f.beta, f.kappa)
+            ukf.initialize(*candidates[i])
+            self.bank.append(Hypothesis(ukf, -0.5 * float(chi_square[i] - chi_square[kept[0]]), time, deque(maxlen=self.nis_length)))
+
+    def _implausible(self, ukf: UnscentedKalmanFilter, time: float) -> bool:
+        if not np.all(np.isfinite(ukf.x)):
             return True
-        p, v = self.ukf.x[0:3], self.ukf.x[3:6]
-        slack = 10.0  # m beyond the region before an estimate counts as impossible
-        if (
-            np.hypot(p[0], p[1]) > self.region.radius + slack
-            or not self.region.z_min - slack <= p[2] <= self.region.z_max + slack
+        p, v = ukf.x[0:3], ukf.x[3:6]
+        region = self._reachable(time)
+        slack = 10.0  # m beyond the reachable region before an estimate counts as impossible
+        return bool(
+            np.hypot(p[0], p[1]) > region.radius + slack
+            or not region.z_min - slack <= p[2] <= region.z_max + slack
             or np.linalg.norm(v) > 2 * self.config.initializer.max_source_speed
-        ):
-            return True
-        if time - self.time_started < self.config.filter.reinit_cooldown or len(self.nis_window) < self.nis_window.maxlen:
+        )
+
+    def _inconsistent(self, hypothesis: Hypothesis, time: float) -> bool:
+        if time - hypothesis.started < self.config.filter.reinit_cooldown or len(hypothesis.nis) < self.nis_length:
             return False
-        return float(np.mean(self.nis_window)) > self.config.filter.divergence_nis
+        return float(np.mean(hypothesis.nis)) > self.config.filter.divergence_nis
+
+    def _assimilate(self, hypothesis: Hypothesis, time: float, dt: float, z: np.ndarray, hx) -> bool:
+        """Predict and update one hypothesis; False if it must be dropped."""
+        ukf = hypothesis.ukf
+        try:
+            ukf.predict(dt)
+            ukf.update(z, self.noise_covariance, hx)
+        except np.linalg.LinAlgError:
+            return False
+        hypothesis.log_weight += ukf.log_likelihood
+        hypothesis.nis.append(ukf.nis)
+        return not (self._implausible(ukf, time) or self._inconsistent(hypothesis, time))
+
+    def _prune(self) -> None:
+        best = max(h.log_weight for h in self.bank)
+        self.bank = [h for h in self.bank if h.log_weight > best - self.config.filter.prune_log_ratio]
+        for h in self.bank:
+            h.log_weight -= best  # keep the weights relative, the best at 0
+        self.bank.sort(key=lambda h: -h.log_weight)
 
     def step(self, time: float, z: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, rng: np.random.Generator) -> TrackerOutput:
         """Assimilate one measurement ``z = [RD, RRD]`` taken at ``time`` with the reported receiver state."""
         self.history.append((time, np.asarray(z, dtype=float), np.asarray(mobile, dtype=float), np.asarray(mobile_velocity, dtype=float)))
+        if np.isnan(self.first_time):
+            self.first_time = time
         nan2 = np.full(2, np.nan)
         if not self.initialized:
             if len(self.history) >= self.burst_length:
@@ -111,19 +216,29 @@ class SourceTracker:
             return TrackerOutput(self.initialized, False, nan2, nan2)
         dt = time - self.last_time
         self.last_time = time
-        try:
-            self.ukf.predict(dt)
-            self.ukf.update(z, self.noise_covariance, self._hx(mobile, mobile_velocity))
-            self.nis_window.append(self.ukf.nis)
-            diverged = self._diverged(time)
-        except np.linalg.LinAlgError:
-            diverged = True
-        if diverged:
-            logger.debug("filter diverged at t = %.1f s; re-initializing with LC-MAP", time)
+        hx = self._hx(mobile, mobile_velocity)
+        self.bank = [h for h in self.bank if self._assimilate(h, time, dt, z, hx)]
+        if self.bank:
+            self._prune()
+            if self._reseed_due(time):
+                self._reseed(time, rng)
+        else:
+            logger.debug("every hypothesis diverged at t = %.1f s; re-initializing with LC-MAP", time)
             self.reinitializations += 1
+            self.reinitializer.region = self._reachable(time)
             self._start(self.reinitializer, min(self.reinit_length, len(self.history)), rng)
             return TrackerOutput(True, True, nan2, nan2)
-        return TrackerOutput(True, False, self.ukf.y.copy(), np.sqrt(np.diag(self.ukf.S)))
+        ukf = self.ukf
+        return TrackerOutput(True, False, ukf.y.copy(), np.sqrt(np.diag(ukf.S)))
+
+    @property
+    def ukf(self) -> UnscentedKalmanFilter:
+        """The likeliest hypothesis's filter (only once initialized)."""
+        return self.bank[0].ukf
+
+    @property
+    def hypotheses(self) -> int:
+        return len(self.bank)
 
     @property
     def position(self) -> np.ndarray:

@@ -169,6 +169,8 @@ class UnscentedKalmanFilter:
         self.sigmas_f: np.ndarray | None = None
         self.y = np.zeros(2)  # last innovation
         self.S = np.eye(2)  # last innovation covariance
+        self.nis = 0.0  # normalized innovation squared of the last update (chi-square, 2 dof)
+        self.log_likelihood = 0.0  # log N(y; 0, S) of the last update
 
     def initialize(self, x: np.ndarray, covariance: np.ndarray) -> None:
         self.x = np.array(x, dtype=float)
@@ -193,14 +195,13 @@ class UnscentedKalmanFilter:
         cross = ((self.sigmas_f - self.x).T * self.Wc) @ dz
         s = self.S
         det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+        if not det > 0:
+            raise np.linalg.LinAlgError("innovation covariance is not positive definite")
         s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
         gain = cross @ s_inv
         self.y = z - zp
         self.x = self.x + gain @ self.y
         self.P = self.P - gain @ s @ gain.T
         self.P = 0.5 * (self.P + self.P.T)
-
-    @property
-    def nis(self) -> float:
-        """Normalized innovation squared of the last update (chi-square, 2 degrees of freedom)."""
-        return float(self.y @ np.linalg.solve(self.S, self.y))
+        self.nis = float(self.y @ s_inv @ self.y)
+        self.log_likelihood = -0.5 * (self.nis + np.log(det) + 2 * np.log(2 * np.pi))

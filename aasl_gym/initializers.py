@@ -13,9 +13,13 @@ velocity follows from a regularized (MAP) Gauss-Newton solve on the burst - the 
 and the candidate is scored by the burst's chi-square J minus ``lambda * log det F``, F the burst's
 Fisher information at the candidate (with lambda = 1 this is the MAP under a Jeffreys prior).
 Implausible candidates (outside the water column or the surveillance region, too fast) are dropped.
-The best grid candidates (overall and on every sheet) are refined by Gauss-Newton on (p, v) over the
-whole burst and scored again; the filter starts at the best one with the inverse of F (inflated) as
-its covariance.
+The grid stage scores on at most ``grid_samples`` of the burst (a long window at 1 Hz is plenty to
+find basins); the best grid candidates (overall and on every sheet) are then refined by Gauss-Newton
+on (p, v) over the whole burst and scored again. A 2 s burst rarely tells the sheets apart, so LC-MAP
+returns up to ``config.hypotheses`` distinct candidates - the best of every sheet first, then the next
+best - each with the inverse of its F (times ``covariance_inflation``) as covariance and its burst
+likelihood exp(-J / 2) as relative weight; the tracker runs one UKF per hypothesis
+(``hypotheses: 1`` is the paper's single filter).
 
 Locus in closed form: with a = p_m - p_f and a candidate p = p_m + r u (u a unit vector),
 |p - p_f| = r - RD gives r = (RD^2 - |a|^2) / (2 (a . u + RD)), valid where r > 0.
@@ -24,7 +28,7 @@ Locus in closed form: with a = p_m - p_f and a candidate p = p_m + r u (u a unit
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
 import numpy as np
@@ -55,9 +59,29 @@ class Burst:
 
 @dataclass(frozen=True)
 class InitialEstimate:
-    state: np.ndarray  # (8,) [p, v, b_p, b_v] at burst.times[-1]
-    covariance: np.ndarray  # (8, 8)
+    """Hypotheses about the base state [p, v, b_p, b_v] at ``burst.times[-1]``, the initializer's pick first.
+
+    Each row is a Gaussian (state, covariance) that starts one UKF; ``log_weights`` are their log
+    likelihoods on the burst relative to the likeliest (so at most 0). The simple initializers return
+    one hypothesis.
+    """
+
+    states: np.ndarray  # (H, 8)
+    covariances: np.ndarray  # (H, 8, 8)
+    log_weights: np.ndarray  # (H,)
     candidates: int = 1  # how many plausible candidates were scored
+
+    @classmethod
+    def single(cls, state: np.ndarray, covariance: np.ndarray, candidates: int = 1) -> "InitialEstimate":
+        return cls(state[None], covariance[None], np.zeros(1), candidates)
+
+    @property
+    def state(self) -> np.ndarray:
+        return self.states[0]
+
+    @property
+    def covariance(self) -> np.ndarray:
+        return self.covariances[0]
 
 
 class Initializer(Protocol):
@@ -91,10 +115,11 @@ def locus_points(mobile: np.ndarray, fixed: np.ndarray, range_difference: float,
     return mobile + distance[:, None] * directions
 
 
-def _cv_propagate(state: np.ndarray, covariance: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def _cv_propagate(states: np.ndarray, covariances: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-velocity prediction of base states (..., 8) and covariances (..., 8, 8) over dt seconds."""
     f = np.eye(8)
     f[0:3, 3:6] = dt * np.eye(3)
-    return f @ state, f @ covariance @ f.T
+    return states @ f.T, f @ covariances @ f.T
 
 
 def _uninformed_bias_sd(burst: Burst) -> float:
@@ -112,7 +137,7 @@ class _BroadPrior:
         c = self.config
         state = np.concatenate([position, np.zeros(3), [range_bias, 0.0]])
         covariance = np.diag([c.position_sd**2] * 3 + [c.velocity_prior_sd**2] * 3 + [bias_sd**2, c.rate_bias_sd**2])
-        return InitialEstimate(state, covariance)
+        return InitialEstimate.single(state, covariance)
 
 
 class NaiveInitializer(_BroadPrior):
@@ -141,8 +166,25 @@ class TdoaLeastSquaresInitializer(_BroadPrior):
         return self.estimate(burst, position, 0.0, _uninformed_bias_sd(burst))
 
 
-def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarray, biases: np.ndarray) -> np.ndarray:
-    """Chi-square of the burst for candidate trajectories p(t) = p + v (t - t0); returns (C,)."""
+def _whitener(burst: Burst) -> np.ndarray:
+    """W (2, 2) with W^T W = R^-1: whitened residuals W r have unit covariance."""
+    return np.linalg.cholesky(np.linalg.inv(burst.noise_covariance)).T
+
+
+def _normal_equations(jacobian: np.ndarray, residual: np.ndarray, whitener: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """J^T R^-1 J (C, n, n) and J^T R^-1 r (C, n) summed over the burst, as batched matrix products.
+
+    ``jacobian`` is (C, K, 2, n), ``residual`` the *whitened* residual (C, K, 2).
+    """
+    count, samples, _, n = jacobian.shape
+    whitened = np.matmul(whitener, jacobian).reshape(count, 2 * samples, n)
+    transposed = whitened.transpose(0, 2, 1)
+    return transposed @ whitened, (transposed @ residual.reshape(count, 2 * samples, 1))[..., 0]
+
+
+def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarray, biases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Chi-square of the burst for candidate trajectories p(t) = p + v (t - t0): (C,), and the whitened
+    residuals (C, K, 2)."""
     tau = burst.times - burst.times[0]
     trajectory = positions[:, None, :] + velocities[:, None, :] * tau[None, :, None]
     predicted = burst.measurement_function(
@@ -150,8 +192,8 @@ def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarra
     )
     residual = burst.measurements[None] - predicted
     residual[..., 0] -= biases[:, None]
-    weight = np.linalg.inv(burst.noise_covariance)
-    return np.einsum("cki,ij,ckj->c", residual, weight, residual), residual
+    whitened = residual @ _whitener(burst).T
+    return np.sum(whitened**2, axis=(1, 2)), whitened
 
 
 class RandomInitializer(_BroadPrior):
@@ -172,7 +214,7 @@ class RandomInitializer(_BroadPrior):
         chi_square, _ = _burst_chi_square(burst, points, np.zeros_like(points), biases)
         best = int(np.argmin(chi_square))
         estimate = self.estimate(burst, points[best], biases[best], self.config.range_bias_sd)
-        return InitialEstimate(estimate.state, estimate.covariance, candidates=len(points))
+        return InitialEstimate.single(estimate.state, estimate.covariance, candidates=len(points))
 
 
 class LCMAPInitializer:
@@ -182,6 +224,8 @@ class LCMAPInitializer:
     refine_iterations = 6
     refine_best = 16  # grid candidates refined overall
     refine_per_sheet = 3  # and on every whole-period sheet
+    separation = 2.0  # m: closer candidates on one sheet are one hypothesis
+    grid_samples = 20  # burst samples the grid stage uses at most (the refinement uses all)
 
     def __init__(self, config: InitializerConfig, region: Box):
         self.config = config
@@ -214,28 +258,28 @@ class LCMAPInitializer:
         return jac
 
     def _solve_velocities(self, burst: Burst, positions: np.ndarray, biases: np.ndarray) -> np.ndarray:
-        weight = np.linalg.inv(burst.noise_covariance)
+        whitener = _whitener(burst)
         prior = np.eye(3) / self.config.velocity_prior_sd**2
         velocities = np.zeros_like(positions)
         for _ in range(self.velocity_iterations):
             _, residual = _burst_chi_square(burst, positions, velocities, biases)
             jac_v = self._jacobians(burst, positions, velocities)[..., 3:6]  # (C, K, 2, 3)
-            normal = np.einsum("ckia,ij,ckjb->cab", jac_v, weight, jac_v) + prior
-            gradient = np.einsum("ckia,ij,ckj->ca", jac_v, weight, residual) - velocities @ prior
+            normal, gradient = _normal_equations(jac_v, residual, whitener)
+            normal = normal + prior
+            gradient = gradient - velocities @ prior
             velocities = velocities + np.linalg.solve(normal, gradient[..., None])[..., 0]
         return velocities
 
     def _score(self, burst: Burst, positions, velocities, biases):
-        """MAP objective J - lambda log det F for each candidate, and its information F (C, 6, 6)."""
+        """MAP objective J - lambda log det F for each candidate, J itself, and the information F (C, 6, 6)."""
         c = self.config
         chi_square, _ = _burst_chi_square(burst, positions, velocities, biases)
         chi_square = chi_square + np.sum(velocities**2, axis=1) / c.velocity_prior_sd**2
         jac = self._jacobians(burst, positions, velocities)
-        weight = np.linalg.inv(burst.noise_covariance)
         prior = np.diag([1 / c.position_sd**2] * 3 + [1 / c.velocity_prior_sd**2] * 3)
-        information = np.einsum("ckia,ij,ckjb->cab", jac, weight, jac) + prior
+        information = _normal_equations(jac, np.zeros(jac.shape[:3]), _whitener(burst))[0] + prior
         _, logdet = np.linalg.slogdet(information)
-        return chi_square - c.information_weight * logdet, information
+        return chi_square - c.information_weight * logdet, chi_square, information
 
     def _refine(self, burst: Burst, positions, velocities, biases):
         """Gauss-Newton on (p, v) jointly over the whole burst, from the best grid candidates.
@@ -243,14 +287,14 @@ class LCMAPInitializer:
         The grid spacing on the locus is coarse against a long burst's precision, so the grid only
         finds the basin; these steps find its bottom.
         """
-        weight = np.linalg.inv(burst.noise_covariance)
+        whitener = _whitener(burst)
         prior = np.diag([1e-6] * 3 + [1 / self.config.velocity_prior_sd**2] * 3)
         theta = np.concatenate([positions, velocities], axis=1)
         for _ in range(self.refine_iterations):
             _, residual = _burst_chi_square(burst, theta[:, :3], theta[:, 3:], biases)
             jac = self._jacobians(burst, theta[:, :3], theta[:, 3:])
-            normal = np.einsum("ckia,ij,ckjb->cab", jac, weight, jac) + prior
-            gradient = np.einsum("ckia,ij,ckj->ca", jac, weight, residual)
+            normal, gradient = _normal_equations(jac, residual, whitener)
+            normal = normal + prior
             gradient[:, 3:] -= theta[:, 3:] @ prior[3:, 3:]
             step = np.linalg.solve(normal, gradient[..., None])[..., 0]
             # Keep each step within a few metres: far from the basin the linearization is poor.
@@ -274,8 +318,11 @@ class LCMAPInitializer:
             logger.warning("LC-MAP found no candidate on the locus inside the region; falling back to naive")
             return NaiveInitializer(c)(burst, rng)
         tau_end = burst.times[-1] - burst.times[0]
-        velocities = self._solve_velocities(burst, positions, biases)
-        score, _ = self._score(burst, positions, velocities, biases)
+        # The grid only has to find basins: on a long window a 1 Hz subset of the burst is enough.
+        stride = -(-len(burst.times) // self.grid_samples)
+        grid_burst = replace(burst, **{name: getattr(burst, name)[::stride] for name in ("times", "measurements", "receiver_positions", "receiver_velocities")})
+        velocities = self._solve_velocities(grid_burst, positions, biases)
+        score, _, _ = self._score(grid_burst, positions, velocities, biases)
         plausible = self._plausible(positions, velocities, tau_end)
         score = np.where(plausible, score, np.inf) if plausible.any() else score
         # Refine the best few of every whole-period sheet and the best overall.
@@ -285,18 +332,46 @@ class LCMAPInitializer:
             chosen += [i for i in order if biases[i] == bias][: self.refine_per_sheet]
         chosen = np.unique(chosen)
         refined_p, refined_v = self._refine(burst, positions[chosen], velocities[chosen], biases[chosen])
-        refined_score, information = self._score(burst, refined_p, refined_v, biases[chosen])
+        biases = biases[chosen]
+        refined_score, chi_square, information = self._score(burst, refined_p, refined_v, biases)
         ok = self._plausible(refined_p, refined_v, tau_end) & np.isfinite(refined_score)
         if ok.any():
             refined_score = np.where(ok, refined_score, np.inf)
-        best = int(np.argmin(refined_score))
-        covariance = np.zeros((8, 8))
-        covariance[:6, :6] = np.linalg.inv(information[best]) * c.covariance_inflation
-        covariance[6, 6] = c.range_bias_sd**2
-        covariance[7, 7] = c.rate_bias_sd**2
-        state = np.concatenate([refined_p[best], refined_v[best], [biases[chosen][best], 0.0]])
-        state, covariance = _cv_propagate(state, covariance, tau_end)
-        return InitialEstimate(state, covariance, candidates=int(plausible.sum()))
+        order = [i for i in np.argsort(refined_score, kind="stable") if np.isfinite(refined_score[i])] or [int(np.argmin(refined_score))]
+        kept = distinct_hypotheses(order, refined_p, biases, c.hypotheses, self.separation, burst.wavelength, sheets_first=True)
+        kept = np.array(kept)
+        states = np.concatenate([refined_p[kept], refined_v[kept], biases[kept, None], np.zeros((len(kept), 1))], axis=1)
+        covariances = np.zeros((len(kept), 8, 8))
+        covariances[:, :6, :6] = np.linalg.inv(information[kept]) * c.covariance_inflation
+        covariances[:, 6, 6] = c.range_bias_sd**2
+        covariances[:, 7, 7] = c.rate_bias_sd**2
+        states, covariances = _cv_propagate(states, covariances, tau_end)
+        # The score ranks candidates; the filters' weights are likelihoods, so they start from the
+        # burst's own: exp(-J / 2), relative to the best kept hypothesis.
+        log_weights = -0.5 * (chi_square[kept] - chi_square[kept].min())
+        return InitialEstimate(states, covariances, log_weights, candidates=int(plausible.sum()))
+
+
+def distinct_hypotheses(order, positions: np.ndarray, sheets: np.ndarray, limit: int, separation: float,
+                        wavelength: float | None, sheets_first: bool = False) -> list[int]:
+    """Up to ``limit`` indices taken from ``order`` (best first), never two on one whole-period sheet
+    (range biases closer than half a wavelength) within ``separation`` metres of each other. With
+    ``sheets_first`` the best of every sheet comes before any sheet's second."""
+    tolerance = 0.5 * wavelength if wavelength else np.inf
+
+    def near(i: int, j: int) -> bool:
+        return abs(sheets[i] - sheets[j]) < tolerance and np.linalg.norm(positions[i] - positions[j]) < separation
+
+    kept: list[int] = []
+    for first_pass in ((True, False) if sheets_first else (False,)):
+        for i in order:
+            if len(kept) == limit:
+                return kept
+            on_a_kept_sheet = any(abs(sheets[i] - sheets[j]) < tolerance for j in kept)
+            if i in kept or (first_pass and on_a_kept_sheet) or any(near(i, j) for j in kept):
+                continue
+            kept.append(int(i))
+    return kept
 
 
 def make_initializer(name: str, config: InitializerConfig, region: Box) -> Initializer:

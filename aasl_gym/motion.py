@@ -1,10 +1,11 @@
 """Truth motion of the source, kinematics of the robot, and the robot's navigation error.
 
 Source motions (SPEC section 5): static, constant velocity (CV), constant acceleration (CA, speed capped
-at ``max_speed``) and constant turn rate and velocity (CTRV, a horizontal coordinated turn). An attacker
-has to stay close to the pod for its tone to harm the disks, so every motion is confined to the
-surveillance region (a vertical cylinder of ``region_radius`` about the origin, inside the water column
-with a margin): at its boundary the source reflects specularly and carries on with the same model.
+at ``max_speed``) and constant turn rate and velocity (CTRV, a horizontal coordinated turn). Each follows
+its model exactly, except that surface and bed (less a margin) reflect it specularly. A fast source can
+therefore leave the surveillance region within an episode (1.5 m/s for 120 s is 180 m); with
+``source.confined`` it reflects at the region's edge too - a loitering attacker, but no longer the
+named motion model whenever it bounces.
 All positions in metres, velocities in m/s, accelerations in m/s^2, turn rates in rad/s.
 """
 
@@ -39,8 +40,15 @@ class Box:
 
 
 def source_region(world: WorldConfig, source: SourceConfig) -> Box:
+    """Where a source may start (and where plausible initial estimates lie)."""
     margin = source.boundary_margin
     return Box(world.region_radius - margin, -world.water_depth + margin, -margin)
+
+
+def motion_region(world: WorldConfig, source: SourceConfig) -> Box:
+    """The bounds a moving source reflects at: the water column, and the region's edge if confined."""
+    region = source_region(world, source)
+    return region if source.confined else replace(region, radius=np.inf)
 
 
 def sample_initial_position(rng: np.random.Generator, radius: float, region: Box) -> np.ndarray:
@@ -106,7 +114,7 @@ def _reflect(position: np.ndarray, velocity: np.ndarray, acceleration: np.ndarra
             velocity[2] = -velocity[2]
             acceleration[2] = -acceleration[2]
     horizontal = np.hypot(position[0], position[1])
-    if horizontal > region.radius:
+    if np.isfinite(region.radius) and horizontal > region.radius:
         normal = np.array([position[0], position[1], 0.0]) / horizontal
         position[:2] *= (2 * region.radius - horizontal) / horizontal
         velocity -= 2 * (velocity @ normal) * normal
@@ -115,7 +123,7 @@ def _reflect(position: np.ndarray, velocity: np.ndarray, acceleration: np.ndarra
 
 
 def advance_source(state: SourceState, dt: float, region: Box) -> SourceState:
-    """The source ``dt`` seconds later (exact within the model, specular reflection at the region)."""
+    """The source ``dt`` seconds later (exact within the model, specular reflection at ``region``'s bounds)."""
     if state.kind == "static":
         return state
     position, velocity, acceleration = state.position, state.velocity, state.acceleration

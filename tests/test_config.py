@@ -35,6 +35,9 @@ def test_default_yaml_is_the_default():
     ({"measurement": {"rate": "fast"}}, r"measurement\.rate: must be a number"),
     ({"filter": {"alpha": 2.0}}, r"filter\.alpha: must lie in \(0, 1\]"),
     ({"source": {"speed_range": [1.0, 0.5]}}, r"source\.speed_range: must satisfy"),
+    ({"source": {"confined": "no"}}, r"source\.confined: must be true or false"),
+    ({"initializer": {"hypotheses": 0}}, r"initializer\.hypotheses: must be an integer >= 1"),
+    ({"filter": {"prune_log_ratio": 0}}, r"filter\.prune_log_ratio: must be a finite number > 0"),
 ])
 def test_bad_values_are_named(data, match):
     with pytest.raises(ConfigError, match=match):

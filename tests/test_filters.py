@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as FilterpyUKF
 from scipy.integrate import quad_vec, solve_ivp
+from scipy.stats import multivariate_normal
 
 from aasl_gym.config import FilterConfig
 from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter
@@ -46,6 +47,8 @@ def test_matches_filterpy_step_for_step(name):
         reference.update(z, R=R, hx=lambda x: hx_factory(mobile, mobile_velocity)(x[None])[0])
         np.testing.assert_allclose(ours.x, reference.x, rtol=0, atol=1e-8)
         np.testing.assert_allclose(ours.P, reference.P, rtol=0, atol=1e-8)
+        assert ours.log_likelihood == pytest.approx(reference.log_likelihood, abs=1e-8)
+        assert ours.nis == pytest.approx(reference.y @ np.linalg.solve(reference.S, reference.y), rel=1e-9)
 
 
 def test_equals_linear_kalman_filter_on_a_linear_model():
@@ -66,6 +69,7 @@ def test_equals_linear_kalman_filter_on_a_linear_model():
         ukf.update(z, R, lambda s: s @ H.T)
         x, P = F @ x, F @ P @ F.T + Q
         S = H @ P @ H.T + R
+        assert ukf.log_likelihood == pytest.approx(multivariate_normal.logpdf(z, H @ x, S), abs=1e-9)
         K = P @ H.T @ np.linalg.inv(S)
         x, P = x + K @ (z - H @ x), P - K @ S @ K.T
         np.testing.assert_allclose(ukf.x, x, atol=1e-9)

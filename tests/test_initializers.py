@@ -72,6 +72,31 @@ def test_every_initializer_returns_a_valid_gaussian(name, rng):
     np.testing.assert_allclose(estimate.covariance, estimate.covariance.T)
 
 
+def test_lcmap_keeps_distinct_hypotheses_best_first_and_the_true_sheet_among_them(rng):
+    """A 2 s burst cannot tell the whole-period sheets apart: LC-MAP keeps the best of every sheet."""
+    offset = 3 * 1.5
+    burst, _ = helix_burst(np.array([5.0, 8, -12]), np.array([0.3, -0.2, 0.0]), offset=offset, duration=2.0)
+    config = InitializerConfig(hypotheses=12)
+    estimate = make_initializer("lcmap", config, REGION)(burst, rng)
+    count = len(estimate.states)
+    assert 2 <= count <= config.hypotheses
+    assert estimate.log_weights.max() == 0.0 and np.all(estimate.log_weights <= 0)
+    sheets = estimate.states[:, 6]
+    assert np.allclose(sheets / 1.5, np.round(sheets / 1.5))  # whole periods
+    assert np.any(np.isclose(sheets, offset))
+    feasible = feasible_offsets(burst.measurements[0, 0], np.linalg.norm(burst.receiver_positions[0] - FIXED), 1.5)
+    assert len(feasible) > config.hypotheses  # so the first pass (one per sheet) fills the bank
+    assert len(np.unique(sheets)) == count
+    for covariance in estimate.covariances:
+        np.linalg.cholesky(covariance)
+    true_sheet = estimate.states[np.isclose(sheets, offset)][0]
+    rd = geometry.range_difference(true_sheet[:3], burst.receiver_positions[-1], FIXED)
+    assert abs(rd + offset - burst.measurements[-1, 0]) < 3 * 0.05  # on the locus of the last RD
+    single = make_initializer("lcmap", InitializerConfig(hypotheses=1), REGION)(burst, rng)
+    assert len(single.states) == 1
+    np.testing.assert_allclose(single.state, estimate.state)  # the bank leads with the paper's pick
+
+
 def test_tdoa_ls_lands_on_the_principal_sheet(rng):
     burst, _ = helix_burst(np.array([5.0, 8, -12]), np.zeros(3), offset=0.0, duration=2.0)
     estimate = make_initializer("tdoa-ls", InitializerConfig(), REGION)(burst, rng)

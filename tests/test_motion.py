@@ -1,11 +1,13 @@
 """Truth motions against analytic motion; robot kinematics against its limits."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from aasl_gym.config import ReceiverConfig, SourceConfig, WorldConfig
 from aasl_gym.motion import (
-    Box, NavigationError, SourceState, advance_source, move_receiver, sample_source, source_region,
+    Box, NavigationError, SourceState, advance_source, motion_region, move_receiver, sample_source,
 )
 
 WORLD, SOURCE = WorldConfig(), SourceConfig()
@@ -43,19 +45,31 @@ def test_ctrv_follows_a_circle():
 
 
 @pytest.mark.parametrize("kind", ["static", "cv", "ca", "ctrv", "mixed"])
-def test_sources_start_near_the_pod_and_stay_in_the_region(kind):
-    region = source_region(WORLD, SOURCE)
+@pytest.mark.parametrize("confined", [False, True])
+def test_sources_start_near_the_pod_and_stay_in_their_bounds(kind, confined):
+    source = dataclasses.replace(SOURCE, confined=confined)
+    region = motion_region(WORLD, source)
     for seed in range(20):
         rng = np.random.default_rng(seed)
-        state = sample_source(rng, kind, SOURCE, WORLD)
+        state = sample_source(rng, kind, source, WORLD)
         assert np.linalg.norm(state.position) <= SOURCE.initial_radius
         assert -WORLD.water_depth < state.position[2] < 0
         if state.kind != "static":
             assert SOURCE.speed_range[0] - 1e-12 <= np.linalg.norm(state.velocity) <= SOURCE.max_speed + 1e-12
         for _ in range(600):
             state = advance_source(state, 0.2, region)
-            assert np.hypot(*state.position[:2]) <= region.radius + 1e-9
+            assert np.hypot(*state.position[:2]) <= (WORLD.region_radius if confined else np.inf)
             assert region.z_min - 1e-9 <= state.position[2] <= region.z_max + 1e-9
+
+
+def test_an_unconfined_source_keeps_its_model_beyond_the_region():
+    """By default only surface and bed bound the source: a fast CV source leaves the region on a line."""
+    region = motion_region(WORLD, SOURCE)
+    state = SourceState("cv", np.array([30.0, 0, -10]), np.array([1.5, 0.5, 0]), np.zeros(3), 0.0, 1.5)
+    start = state.position
+    for _ in range(600):
+        state = advance_source(state, 0.2, region)
+    np.testing.assert_allclose(state.position, start + 120.0 * np.array([1.5, 0.5, 0]), atol=1e-9)
 
 
 def test_same_seed_same_source():

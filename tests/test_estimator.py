@@ -1,0 +1,72 @@
+"""The tracker: its hypothesis bank against independent truths (the true whole-period offset, the truth trajectory)."""
+
+import numpy as np
+import pytest
+
+from aasl_gym.config import EnvConfig
+from aasl_gym.env import AASLEnv
+from aasl_gym.initializers import Burst
+from aasl_gym.measurements import direct_measurement
+
+STUDY = EnvConfig().replace(world={"reflections": False}, filter={"multipath": "none"}, source={"motion": "static"})
+
+
+@pytest.mark.parametrize("motion_model", ["cv", "ca", "ctrv"])
+def test_window_chi_square_of_the_truth_is_only_the_velocity_prior(motion_model):
+    """Noise-free measurements of a CV source: the truth's residuals vanish under every motion model."""
+    env = AASLEnv(STUDY.replace(filter={"motion_model": motion_model}), patrol="helix")
+    tracker = env.tracker
+    times = np.arange(0.0, 10.0, 0.2)
+    position, velocity = np.array([6.0, -9.0, -12.0]), np.array([0.4, 0.3, 0.05])
+    angle = times / 15.0
+    mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), np.full_like(times, -7.0)], -1)
+    mobile_velocity = np.stack([-np.sin(angle), np.cos(angle), np.zeros_like(times)], -1)
+    truth = position + velocity * times[:, None]
+    z = direct_measurement(truth, velocity, mobile, mobile_velocity, env.fixed)
+    z[:, 0] += 3 * 1.5  # a whole-period offset, held in b_p
+    burst = Burst(times, z, mobile, mobile_velocity, env.fixed, env.filter_covariance, 1.5, tracker.measurement_function)
+    state = np.zeros(tracker.model.dim)
+    state[0:3], state[3:6], state[-2] = truth[-1], velocity, 4.5
+    wrong = state.copy()
+    wrong[-2] = 3.0  # the neighbouring sheet
+    chi_square = tracker._window_chi_square(burst, np.stack([state, wrong]))
+    prior = velocity @ velocity / env.config.initializer.velocity_prior_sd**2
+    assert chi_square[0] == pytest.approx(prior, rel=1e-9)
+    assert chi_square[1] > 100 * len(times)  # 1.5 m off in RD at sigma 5 cm, every sample
+
+
+def test_the_bank_settles_on_the_true_whole_period_offset():
+    """After 100 s of helix the likeliest hypothesis carries the true offset (measured RD - true RD)."""
+    env = AASLEnv(STUDY, patrol="helix")
+    for seed in range(3):
+        env.reset(seed=seed)
+        for _ in range(500):
+            _, _, _, _, info = env.step(np.zeros(3))
+        true_offset = info["measurement"][0] - info["measurement_true"][0]
+        assert env.tracker.ukf.x[-2] == pytest.approx(true_offset, abs=0.3)
+        assert info["position_error"] < 1.0
+
+
+def test_lcmap_starts_several_hypotheses_and_prunes_them():
+    env = AASLEnv(STUDY, patrol="helix")
+    env.reset(seed=0)
+    counts = []
+    for _ in range(300):
+        env.step(np.zeros(3))
+        counts.append(env.tracker.hypotheses)
+    burst_steps = int(env.config.initializer.burst_duration * env.config.measurement.rate)
+    assert counts[burst_steps - 1] > 1
+    assert counts[-1] < counts[burst_steps - 1]
+    single = AASLEnv(STUDY.replace(initializer={"hypotheses": 1}), patrol="helix")
+    single.reset(seed=0)
+    for _ in range(50):
+        single.step(np.zeros(3))
+        assert single.tracker.hypotheses <= 1
+
+
+def test_naive_starts_one_hypothesis():
+    env = AASLEnv(STUDY.replace(initializer={"name": "naive"}), patrol="helix")
+    env.reset(seed=0)
+    for _ in range(20):
+        env.step(np.zeros(3))
+    assert env.tracker.hypotheses == 1
