@@ -215,7 +215,7 @@ class InitializerConfig:
     rate_bias_sd: float = 0.02  # m/s, initial sd of b_v
     covariance_inflation: float = 1.0  # lcmap's local-information covariance is multiplied by this
     hypotheses: int = 12  # lcmap: distinct candidates (best of each sheet first) that each start a UKF; 1 = one filter
-    reseed_interval: float = 5.0  # s; after an lcmap start, lcmap re-runs on the growing window this often while uncertain (0 = never)
+    reseed_interval: float = 5.0  # s; after an lcmap start (cv filter), lcmap re-runs on the growing window this often (0 = never)
     reseed_until: float = 30.0  # s, longest such window; no re-seeding after it
 
     def __post_init__(self) -> None:

@@ -94,8 +94,8 @@ class AASLEnv(gym.Env):
     the physics and sign conventions. Each source follows its motion model exactly (only surface and
     bed reflect it), so a fast one can leave the surveillance region within an episode; set
     ``source.confined`` for a source that turns back at the region's edge. LC-MAP starts a bank of
-    UKFs, one per likely whole-period sheet, and re-runs on its growing window while the estimate is
-    uncertain; the reported estimate is the likeliest filter's (``aasl_gym.estimator``).
+    UKFs, one per likely whole-period sheet, and (with the CV filter model) re-runs on its growing window
+    for the first 30 s; the reported estimate is the likeliest filter's (``aasl_gym.estimator``).
 
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: a velocity command scaled by ``receiver.max_speed`` (1.5 m/s). In

@@ -338,8 +338,7 @@ class LCMAPInitializer:
         if ok.any():
             refined_score = np.where(ok, refined_score, np.inf)
         order = [i for i in np.argsort(refined_score, kind="stable") if np.isfinite(refined_score[i])] or [int(np.argmin(refined_score))]
-        kept = distinct_hypotheses(order, refined_p, biases, c.hypotheses, self.separation, burst.wavelength, sheets_first=True)
-        kept = np.array(kept)
+        kept = np.array(distinct_hypotheses(order, refined_p, biases, c.hypotheses, self.separation, burst.wavelength, sheets_first=True))
         states = np.concatenate([refined_p[kept], refined_v[kept], biases[kept, None], np.zeros((len(kept), 1))], axis=1)
         covariances = np.zeros((len(kept), 8, 8))
         covariances[:, :6, :6] = np.linalg.inv(information[kept]) * c.covariance_inflation
@@ -347,7 +346,7 @@ class LCMAPInitializer:
         covariances[:, 7, 7] = c.rate_bias_sd**2
         states, covariances = _cv_propagate(states, covariances, tau_end)
         # The score ranks candidates; the filters' weights are likelihoods, so they start from the
-        # burst's own: exp(-J / 2), relative to the best kept hypothesis.
+        # burst's own: exp(-J / 2), relative to the likeliest kept hypothesis.
         log_weights = -0.5 * (chi_square[kept] - chi_square[kept].min())
         return InitialEstimate(states, covariances, log_weights, candidates=int(plausible.sum()))
 
