@@ -26,7 +26,7 @@ import numpy as np
 
 from aasl_gym.config import EnvConfig
 from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model
-from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer
+from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, whitener
 from aasl_gym.measurements import Propagation, multipath_measurement
 from aasl_gym.motion import Box
 
@@ -68,7 +68,6 @@ class SourceTracker:
         self.reinit_length = max(2, int(round(f.reinit_window * rate)))
         ini = config.initializer
         self.reseed_length = int(round(ini.reseed_until * rate)) + 1 if ini.reseed_interval > 0 else 0
-        self.base_index = np.r_[0:6, self.model.dim - 2, self.model.dim - 1]  # [p, v, b_p, b_v] in the model's state
         self.nis_length = max(1, int(round(f.divergence_window * rate)))
         self.reset()
 
@@ -112,13 +111,19 @@ class SourceTracker:
         self.window_start = burst.times[0]
         extra_sd = EXTRA_STATE_SD[self.model.name]
         time = self.history[-1][0]
-        self.bank = []
-        for state, covariance, log_weight in zip(estimate.states, estimate.covariances, estimate.log_weights):
-            ukf = UnscentedKalmanFilter(self.model, self.config.filter.alpha, self.config.filter.beta, self.config.filter.kappa)
-            ukf.initialize(*self.model.embed(state, covariance, extra_sd))
-            self.bank.append(Hypothesis(ukf, float(log_weight), time, deque(maxlen=self.nis_length)))
+        self.bank = [
+            self._hypothesis(*self.model.embed(state, covariance, extra_sd), log_weight, time)
+            for state, covariance, log_weight in zip(estimate.states, estimate.covariances, estimate.log_weights)
+        ]
         self.initialized = True
         self.last_reseed = time
+
+    def _hypothesis(self, x: np.ndarray, covariance: np.ndarray, log_weight: float, time: float) -> Hypothesis:
+        """A fresh UKF at (x, covariance) in the model's layout, started at ``time``."""
+        f = self.config.filter
+        ukf = UnscentedKalmanFilter(self.model, f.alpha, f.beta, f.kappa)
+        ukf.initialize(x, covariance)
+        return Hypothesis(ukf, float(log_weight), time, deque(maxlen=self.nis_length))
 
     def _reseed_due(self, time: float) -> bool:
         ini = self.config.initializer
@@ -136,7 +141,7 @@ class SourceTracker:
         predicted = self.measurement_function(
             trajectory[..., 0:3], trajectory[..., 3:6], burst.receiver_positions[None], burst.receiver_velocities[None], self.fixed
         ) + trajectory[..., -2:]
-        whitened = (burst.measurements[None] - predicted) @ np.linalg.cholesky(np.linalg.inv(burst.noise_covariance))
+        whitened = (burst.measurements[None] - predicted) @ whitener(burst).T
         velocity_prior = np.sum(states[:, 3:6] ** 2, axis=1) / self.config.initializer.velocity_prior_sd**2
         return np.sum(whitened**2, axis=(1, 2)) + velocity_prior
 
@@ -155,18 +160,12 @@ class SourceTracker:
         candidates = [(h.ukf.x, h.ukf.P) for h in self.bank]
         candidates += [self.model.embed(state, covariance, extra_sd) for state, covariance in zip(fresh.states, fresh.covariances)]
         states = np.array([x for x, _ in candidates])
-        base = states[:, self.base_index]
+        base = states[:, self.model.base_index]
         chi_square = self._window_chi_square(burst, states)
         order = [i for i in np.argsort(chi_square, kind="stable") if np.isfinite(chi_square[i])]
         kept = distinct_hypotheses(order, base[:, :3], base[:, 6], self.config.initializer.hypotheses, self.reinitializer.separation, self.wavelength)
-        if not kept:
-            return
-        f = self.config.filter
-        self.bank = []
-        for i in kept:
-            ukf = UnscentedKalmanFilter(self.model, f.alpha, f.beta, f.kappa)
-            ukf.initialize(*candidates[i])
-            self.bank.append(Hypothesis(ukf, -0.5 * float(chi_square[i] - chi_square[kept[0]]), time, deque(maxlen=self.nis_length)))
+        if kept:
+            self.bank = [self._hypothesis(*candidates[i], -0.5 * (chi_square[i] - chi_square[kept[0]]), time) for i in kept]
 
     def _implausible(self, ukf: UnscentedKalmanFilter, time: float) -> bool:
         if not np.all(np.isfinite(ukf.x)):

@@ -67,13 +67,18 @@ class MotionModel:
             self._noise_cache[dt] = q
         return self._noise_cache[dt]
 
+    @property
+    def base_index(self) -> np.ndarray:
+        """Where the base-layout components [p, v, b_p, b_v] sit in this model's state."""
+        return np.r_[0:6, self.dim - 2, self.dim - 1]
+
     def embed(self, state: np.ndarray, covariance: np.ndarray, extra_sd: float) -> tuple[np.ndarray, np.ndarray]:
         """Lift a base-layout state [p, v, b_p, b_v] (and covariance) into this model's layout.
 
         The model's extra components (acceleration, turn rate) start at zero with sd ``extra_sd``.
         """
         extra = self.dim - BASE_DIM
-        index = np.r_[0:6, self.dim - 2, self.dim - 1]
+        index = self.base_index
         x = np.zeros(self.dim)
         x[index] = state
         p = np.zeros((self.dim, self.dim))

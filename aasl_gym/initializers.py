@@ -166,18 +166,18 @@ class TdoaLeastSquaresInitializer(_BroadPrior):
         return self.estimate(burst, position, 0.0, _uninformed_bias_sd(burst))
 
 
-def _whitener(burst: Burst) -> np.ndarray:
+def whitener(burst: Burst) -> np.ndarray:
     """W (2, 2) with W^T W = R^-1: whitened residuals W r have unit covariance."""
     return np.linalg.cholesky(np.linalg.inv(burst.noise_covariance)).T
 
 
-def _normal_equations(jacobian: np.ndarray, residual: np.ndarray, whitener: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _normal_equations(jacobian: np.ndarray, residual: np.ndarray, white: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """J^T R^-1 J (C, n, n) and J^T R^-1 r (C, n) summed over the burst, as batched matrix products.
 
-    ``jacobian`` is (C, K, 2, n), ``residual`` the *whitened* residual (C, K, 2).
+    ``jacobian`` is (C, K, 2, n), ``residual`` the *whitened* residual (C, K, 2), ``white`` from :func:`whitener`.
     """
     count, samples, _, n = jacobian.shape
-    whitened = np.matmul(whitener, jacobian).reshape(count, 2 * samples, n)
+    whitened = np.matmul(white, jacobian).reshape(count, 2 * samples, n)
     transposed = whitened.transpose(0, 2, 1)
     return transposed @ whitened, (transposed @ residual.reshape(count, 2 * samples, 1))[..., 0]
 
@@ -192,7 +192,7 @@ def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarra
     )
     residual = burst.measurements[None] - predicted
     residual[..., 0] -= biases[:, None]
-    whitened = residual @ _whitener(burst).T
+    whitened = residual @ whitener(burst).T
     return np.sum(whitened**2, axis=(1, 2)), whitened
 
 
@@ -258,13 +258,13 @@ class LCMAPInitializer:
         return jac
 
     def _solve_velocities(self, burst: Burst, positions: np.ndarray, biases: np.ndarray) -> np.ndarray:
-        whitener = _whitener(burst)
+        white = whitener(burst)
         prior = np.eye(3) / self.config.velocity_prior_sd**2
         velocities = np.zeros_like(positions)
         for _ in range(self.velocity_iterations):
             _, residual = _burst_chi_square(burst, positions, velocities, biases)
             jac_v = self._jacobians(burst, positions, velocities)[..., 3:6]  # (C, K, 2, 3)
-            normal, gradient = _normal_equations(jac_v, residual, whitener)
+            normal, gradient = _normal_equations(jac_v, residual, white)
             normal = normal + prior
             gradient = gradient - velocities @ prior
             velocities = velocities + np.linalg.solve(normal, gradient[..., None])[..., 0]
@@ -277,7 +277,7 @@ class LCMAPInitializer:
         chi_square = chi_square + np.sum(velocities**2, axis=1) / c.velocity_prior_sd**2
         jac = self._jacobians(burst, positions, velocities)
         prior = np.diag([1 / c.position_sd**2] * 3 + [1 / c.velocity_prior_sd**2] * 3)
-        information = _normal_equations(jac, np.zeros(jac.shape[:3]), _whitener(burst))[0] + prior
+        information = _normal_equations(jac, np.zeros(jac.shape[:3]), whitener(burst))[0] + prior
         _, logdet = np.linalg.slogdet(information)
         return chi_square - c.information_weight * logdet, chi_square, information
 
@@ -287,13 +287,13 @@ class LCMAPInitializer:
         The grid spacing on the locus is coarse against a long burst's precision, so the grid only
         finds the basin; these steps find its bottom.
         """
-        whitener = _whitener(burst)
+        white = whitener(burst)
         prior = np.diag([1e-6] * 3 + [1 / self.config.velocity_prior_sd**2] * 3)
         theta = np.concatenate([positions, velocities], axis=1)
         for _ in range(self.refine_iterations):
             _, residual = _burst_chi_square(burst, theta[:, :3], theta[:, 3:], biases)
             jac = self._jacobians(burst, theta[:, :3], theta[:, 3:])
-            normal, gradient = _normal_equations(jac, residual, whitener)
+            normal, gradient = _normal_equations(jac, residual, white)
             normal = normal + prior
             gradient[:, 3:] -= theta[:, 3:] @ prior[3:, 3:]
             step = np.linalg.solve(normal, gradient[..., None])[..., 0]
