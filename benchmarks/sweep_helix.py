@@ -1,10 +1,10 @@
 """Choose the helix geometry by the Cramer-Rao bound, once (SPEC section 6: give the baseline its best chance).
 
-For each helix (radius x depth period) and each seeded source, accumulate the Fisher information of
-[p(0), v, b_p] along the flown path at the *true* state (CV source model, whole-period offset known to
-``initializer.range_bias_sd``, the initializer's priors on p and v) and record the first time the
-bound on the position error, sqrt(trace(P_pos)), falls below ``--target`` metres. No filter is involved,
-so this ranks geometries, not estimators. Prints a table and writes it as markdown to ``--out``.
+For each helix (radius x depth period) and each seeded source, the bound of ``crb_bound.py`` (Fisher
+information of the source's motion parameters and b_p along the flown path at the *true* state,
+whole-period offset known to ``initializer.range_bias_sd``, the initializer's priors) gives the first
+time the bound on the position error, sqrt(trace(P_pos)), falls below ``--target`` metres. No filter
+is involved, so this ranks geometries, not estimators. Prints a table and writes it as markdown to ``--out``.
 
     python benchmarks/sweep_helix.py --radii 5 10 15 20 --depth-periods 40 80 --episodes 20
 """
@@ -16,31 +16,17 @@ import itertools
 
 import numpy as np
 
+from crb_bound import episode_bound
+
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
-from aasl_gym.fisher import measurement_jacobian
 from aasl_gym.io import atomic_write_text
 
 
 def time_to_bound(env: AASLEnv, seed: int, target: float) -> float:
-    """Seconds until the CRB on the source position falls below ``target`` m (inf if never)."""
-    env.reset(seed=seed)
-    ini = env.config.initializer
-    information = np.diag([ini.position_sd**-2] * 3 + [ini.velocity_prior_sd**-2] * 3 + [ini.range_bias_sd**-2])
-    weight = np.linalg.inv(env.filter_covariance)
-    for _ in range(env.max_steps):
-        env.step(np.zeros(3))
-        t = env._time
-        local = measurement_jacobian(env.source.position, env.source.velocity, env.receiver_position, env.receiver_velocity, env.fixed)[:, :6]
-        jac = np.zeros((2, 7))
-        jac[:, :3] = local[:, :3]
-        jac[:, 3:6] = local[:, 3:6] + t * local[:, :3]  # p(t) = p(0) + v t
-        jac[0, 6] = 1.0
-        information += jac.T @ weight @ jac
-        to_position = np.hstack([np.eye(3), t * np.eye(3), np.zeros((3, 1))])
-        if np.sqrt(np.trace(to_position @ np.linalg.inv(information) @ to_position.T)) < target:
-            return t
-    return np.inf
+    """Seconds until the CRB on the source position first falls below ``target`` m (inf if never)."""
+    below = np.nonzero(episode_bound(env, seed) < target)[0]
+    return (below[0] + 1) * env.dt if len(below) else np.inf
 
 
 def main(argv: list[str] | None = None) -> None:
