@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
 import yaml
 
 SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "mixed")
@@ -206,7 +207,7 @@ class InitializerConfig:
 
     name: str = "lcmap"  # lcmap, naive, random, tdoa-ls
     burst_duration: float = 2.0  # s of measurements before the filter starts
-    candidate_directions: int = 600  # lcmap / random: directions on the locus per whole-period offset
+    candidate_directions: int = 200  # lcmap / random: directions on the locus per whole-period offset
     information_weight: float = 1.0  # lambda in J - lambda * log det F (1 = Jeffreys prior)
     velocity_prior_sd: float = 1.0  # m/s, MAP prior on the source velocity
     max_source_speed: float = 2.0  # m/s, plausibility bound
@@ -215,8 +216,11 @@ class InitializerConfig:
     rate_bias_sd: float = 0.02  # m/s, initial sd of b_v
     covariance_inflation: float = 1.0  # lcmap's local-information covariance is multiplied by this
     hypotheses: int = 12  # lcmap: distinct candidates (best of each sheet first) that each start a UKF; 1 = one filter
-    reseed_interval: float = 5.0  # s; after an lcmap start (cv filter), lcmap re-runs on the growing window this often (0 = never)
-    reseed_until: float = 30.0  # s, longest such window; no re-seeding after it
+    reseed_interval: float = 5.0  # s; after an lcmap start, lcmap re-runs on the growing window this often (0 = never)
+    reseed_until: float = 60.0  # s, longest such window; no re-seeding after it
+    max_turn_rate: float = 0.12  # rad/s; lcmap with a ctrv filter fits turns on a grid over +- this
+    turn_rate_steps: int = 9  # values in that grid (odd keeps 0, the straight line)
+    acceleration_prior_sd: float = 0.01  # m/s^2; lcmap with a ca filter fits the acceleration under this prior
 
     def __post_init__(self) -> None:
         _choice(self.name, INITIALIZERS, "initializer.name")
@@ -229,6 +233,15 @@ class InitializerConfig:
         for name in ("velocity_prior_sd", "max_source_speed", "position_sd", "range_bias_sd", "rate_bias_sd"):
             _positive(getattr(self, name), f"initializer.{name}")
         _check(self.covariance_inflation >= 1, "initializer.covariance_inflation", "must be >= 1")
+        _positive(self.max_turn_rate, "initializer.max_turn_rate")
+        _positive(self.acceleration_prior_sd, "initializer.acceleration_prior_sd")
+        _check(isinstance(self.turn_rate_steps, int) and self.turn_rate_steps >= 1, "initializer.turn_rate_steps",
+               f"must be an integer >= 1, got {self.turn_rate_steps!r}")
+
+    @property
+    def turn_rates(self) -> np.ndarray:
+        """The turn rates (rad/s) LC-MAP tries with a ctrv filter."""
+        return np.linspace(-self.max_turn_rate, self.max_turn_rate, self.turn_rate_steps) if self.turn_rate_steps > 1 else np.zeros(1)
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,9 @@ its innovation likelihood N(y; 0, S); one that trails the best by ``filter.prune
 log) is dropped, and so is one whose mean NIS over ``divergence_window`` exceeds ``divergence_nis``, whose
 covariance stops being positive definite, or whose estimate leaves the physically possible region.
 The estimate reported is the likeliest hypothesis's. Two seconds seldom show *where* on its sheet the
-source is, so after an LC-MAP start (CV filter model) LC-MAP re-runs every ``initializer.reseed_interval``
-on the growing window, up to ``reseed_until``, even when a filter already looks confident (a confident
+source is, so after an LC-MAP start LC-MAP re-runs every ``initializer.reseed_interval`` on the growing
+window, up to ``reseed_until``, fitting the filter's motion model (straight, turning or accelerating; see
+:mod:`aasl_gym.initializers`), even when a filter already looks confident (a confident
 filter can sit on a wrong, self-consistent solution); its fresh hypotheses and the running filters are
 weighed on that window's chi-square and the best ``initializer.hypotheses`` continue. When no
 hypothesis is left the tracker re-starts with LC-MAP on the most recent ``reinit_window`` of
@@ -59,8 +60,9 @@ class SourceTracker:
         f = config.filter
         self.propagation = Propagation.from_config(config.world, config.source.frequency)
         self.model = make_motion_model(f)
-        self.initializer = make_initializer(config.initializer.name, config.initializer, region)
-        self.reinitializer = LCMAPInitializer(config.initializer, region)
+        # LC-MAP fits the filter's motion model: straight lines, turns or a constant acceleration.
+        self.initializer = make_initializer(config.initializer.name, config.initializer, region, self.model.name)
+        self.reinitializer = LCMAPInitializer(config.initializer, region, self.model.name)
         self.wavelength = config.wavelength if config.source.waveform == "tone" else None
         self.fixed = np.asarray(config.world.fixed_position, dtype=float)
         rate = config.measurement.rate
@@ -102,21 +104,34 @@ class SourceTracker:
         growth = self.config.initializer.max_source_speed * (time - self.first_time)
         return replace(self.region, radius=self.region.radius + growth)
 
+    def _lcmap_at(self, time: float) -> LCMAPInitializer:
+        """LC-MAP for a re-start or re-seed at ``time``, bounded by where the source can be by then."""
+        self.reinitializer.region = self._reachable(time)
+        return self.reinitializer
+
     def _start(self, initializer, length: int, rng: np.random.Generator) -> None:
         burst = self._burst(length)
         estimate = initializer(burst, rng)
-        # LC-MAP fits constant velocity over its window: over tens of seconds that misleads the
-        # filters of a turning or accelerating source (measured: CTRV success drops), so re-seed CV only.
-        self.reseeding = isinstance(initializer, LCMAPInitializer) and self.reseed_length > 0 and self.model.name == "cv"
+        self.reseeding = isinstance(initializer, LCMAPInitializer) and self.reseed_length > 0
         self.window_start = burst.times[0]
-        extra_sd = EXTRA_STATE_SD[self.model.name]
         time = self.history[-1][0]
         self.bank = [
-            self._hypothesis(*self.model.embed(state, covariance, extra_sd), log_weight, time)
-            for state, covariance, log_weight in zip(estimate.states, estimate.covariances, estimate.log_weights)
+            self._hypothesis(*self._embed(estimate, i), log_weight, time) for i, log_weight in enumerate(estimate.log_weights)
         ]
         self.initialized = True
         self.last_reseed = time
+
+    def _embed(self, estimate, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Hypothesis ``index`` of an initializer's estimate in the filter's layout, with the turn rate or
+        acceleration LC-MAP fitted (zero, with the broad sd of ``EXTRA_STATE_SD``, if none was)."""
+        extra, extra_sd = 0.0, EXTRA_STATE_SD[self.model.name]
+        ini = self.config.initializer
+        if self.model.name == "ctrv" and estimate.turn_rates is not None:
+            extra = estimate.turn_rates[index]
+            extra_sd = 2 * ini.max_turn_rate / max(ini.turn_rate_steps - 1, 1)  # the grid's spacing
+        elif self.model.name == "ca" and estimate.accelerations is not None:
+            extra = estimate.accelerations[index]
+        return self.model.embed(estimate.states[index], estimate.covariances[index], extra_sd, extra)
 
     def _hypothesis(self, x: np.ndarray, covariance: np.ndarray, log_weight: float, time: float) -> Hypothesis:
         """A fresh UKF at (x, covariance) in the model's layout, started at ``time``."""
@@ -154,11 +169,9 @@ class SourceTracker:
         """
         self.last_reseed = time
         burst = self._burst(sum(1 for row in self.history if row[0] >= self.window_start))
-        self.reinitializer.region = self._reachable(time)
-        fresh = self.reinitializer(burst, rng)
-        extra_sd = EXTRA_STATE_SD[self.model.name]
+        fresh = self._lcmap_at(time)(burst, rng)
         candidates = [(h.ukf.x, h.ukf.P) for h in self.bank]
-        candidates += [self.model.embed(state, covariance, extra_sd) for state, covariance in zip(fresh.states, fresh.covariances)]
+        candidates += [self._embed(fresh, i) for i in range(len(fresh.states))]
         states = np.array([x for x, _ in candidates])
         base = states[:, self.model.base_index]
         chi_square = self._window_chi_square(burst, states)
@@ -225,8 +238,7 @@ class SourceTracker:
         else:
             logger.debug("every hypothesis diverged at t = %.1f s; re-initializing with LC-MAP", time)
             self.reinitializations += 1
-            self.reinitializer.region = self._reachable(time)
-            self._start(self.reinitializer, min(self.reinit_length, len(self.history)), rng)
+            self._start(self._lcmap_at(time), min(self.reinit_length, len(self.history)), rng)
             return TrackerOutput(True, True, nan2, nan2)
         ukf = self.ukf
         return TrackerOutput(True, False, ukf.y.copy(), np.sqrt(np.diag(ukf.S)))

@@ -72,14 +72,15 @@ class MotionModel:
         """Where the base-layout components [p, v, b_p, b_v] sit in this model's state."""
         return np.r_[0:6, self.dim - 2, self.dim - 1]
 
-    def embed(self, state: np.ndarray, covariance: np.ndarray, extra_sd: float) -> tuple[np.ndarray, np.ndarray]:
+    def embed(self, state: np.ndarray, covariance: np.ndarray, extra_sd: float, extra_value: float | np.ndarray = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Lift a base-layout state [p, v, b_p, b_v] (and covariance) into this model's layout.
 
-        The model's extra components (acceleration, turn rate) start at zero with sd ``extra_sd``.
+        The model's extra components (acceleration, turn rate) start at ``extra_value`` with sd ``extra_sd``.
         """
         extra = self.dim - BASE_DIM
         index = self.base_index
         x = np.zeros(self.dim)
+        x[6 : 6 + extra] = extra_value
         x[index] = state
         p = np.zeros((self.dim, self.dim))
         p[np.ix_(index, index)] = covariance

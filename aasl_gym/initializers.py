@@ -21,6 +21,14 @@ best - each with the inverse of its F (times ``covariance_inflation``) as covari
 likelihood exp(-J / 2) as relative weight; the tracker runs one UKF per hypothesis
 (``hypotheses: 1`` is the paper's single filter).
 
+LC-MAP fits the trajectory the filter's motion model allows. With ``cv`` (the default) it is a
+straight line. With ``ctrv`` every candidate position is tried at each turn rate of a small grid
+(``initializer.turn_rate_steps`` values over +-``max_turn_rate``) and the refinement fits the rate; with
+``ca`` the refinement fits a constant acceleration (prior sd ``acceleration_prior_sd``). Over the tens of
+seconds a re-seed window spans, a straight-line fit of a turning or accelerating source finds the wrong
+basin. For a fixed turn rate or acceleration the trajectory is still affine in (p, v), so the velocity
+solve and the refinement are the same Gauss-Newton steps.
+
 Locus in closed form: with a = p_m - p_f and a candidate p = p_m + r u (u a unit vector),
 |p - p_f| = r - RD gives r = (RD^2 - |a|^2) / (2 (a . u + RD)), valid where r > 0.
 """
@@ -36,7 +44,7 @@ import numpy as np
 from aasl_gym import geometry
 from aasl_gym.config import InitializerConfig
 from aasl_gym.fisher import measurement_jacobian
-from aasl_gym.motion import Box
+from aasl_gym.motion import Box, coordinated_turn_displacement
 
 logger = logging.getLogger(__name__)
 
@@ -70,6 +78,8 @@ class InitialEstimate:
     covariances: np.ndarray  # (H, 8, 8)
     log_weights: np.ndarray  # (H,)
     candidates: int = 1  # how many plausible candidates were scored
+    turn_rates: np.ndarray | None = None  # (H,) rad/s, the turn each hypothesis was fitted with (None: straight)
+    accelerations: np.ndarray | None = None  # (H, 3) m/s^2, the acceleration each was fitted with (None: none)
 
     @classmethod
     def single(cls, state: np.ndarray, covariance: np.ndarray, candidates: int = 1) -> "InitialEstimate":
@@ -115,11 +125,78 @@ def locus_points(mobile: np.ndarray, fixed: np.ndarray, range_difference: float,
     return mobile + distance[:, None] * directions
 
 
-def _cv_propagate(states: np.ndarray, covariances: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Constant-velocity prediction of base states (..., 8) and covariances (..., 8, 8) over dt seconds."""
-    f = np.eye(8)
-    f[0:3, 3:6] = dt * np.eye(3)
-    return states @ f.T, f @ covariances @ f.T
+class CandidateMotion:
+    """How each candidate's trajectory over a window follows from its position p and velocity v at the
+    window's first sample: straight, turning horizontally at a fixed rate omega, or at a fixed acceleration a.
+
+    p(tau) = p + A(tau) v + a tau^2 / 2 and v(tau) = B(tau) v + a tau, affine in (p, v), with
+    A = [[s, -c, 0], [c, s, 0], [0, 0, tau]], B = [[cos, -sin, 0], [sin, cos, 0], [0, 0, 1]],
+    s = sin(omega tau) / omega and c = (1 - cos(omega tau)) / omega; omega = 0 is a straight line
+    (s = tau, c = 0, B = I). Arrays are (C, K): candidate by sample.
+    """
+
+    def __init__(self, tau: np.ndarray, turn_rates: np.ndarray, accelerations: np.ndarray | None = None):
+        shape = (len(turn_rates), len(tau))
+        self.tau = tau
+        self.accelerations = accelerations  # (C, 3) m/s^2, or None
+        self.straight = not np.any(turn_rates)  # the common case, with a shortcut: it is most of the cost
+        if self.straight:
+            self.s, self.c = np.broadcast_to(tau, shape), np.zeros(shape)
+            self.cos, self.sin = np.ones(shape), np.zeros(shape)
+            return
+        east = np.broadcast_to([1.0, 0.0, 0.0], shape + (3,))
+        displacement, velocity = coordinated_turn_displacement(east, np.asarray(turn_rates)[:, None], tau[None, :])
+        self.s, self.c = displacement[..., 0], displacement[..., 1]
+        self.cos, self.sin = velocity[..., 0], velocity[..., 1]
+
+    def trajectory(self, positions: np.ndarray, velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (C, K, 3) and velocities (C, K, 3) from p, v (C, 3) at the first sample."""
+        if self.straight:
+            trajectory, velocity = positions[:, None, :] + velocities[:, None, :] * self.tau[None, :, None], velocities[:, None, :]
+        else:
+            vx, vy, vz = (velocities[:, i, None] for i in range(3))
+            displacement = np.stack([self.s * vx - self.c * vy, self.c * vx + self.s * vy, vz * self.tau], axis=-1)
+            velocity = np.stack([self.cos * vx - self.sin * vy, self.sin * vx + self.cos * vy, np.broadcast_to(vz, self.s.shape)], axis=-1)
+            trajectory = positions[:, None, :] + displacement
+        if self.accelerations is not None:
+            a, tau = self.accelerations[:, None, :], self.tau[None, :, None]
+            trajectory, velocity = trajectory + 0.5 * a * tau**2, velocity + a * tau
+        return trajectory, velocity
+
+    def chain(self, local: np.ndarray, with_acceleration: bool = False) -> np.ndarray:
+        """d z / d[p, v] (and d[a], with ``with_acceleration``) at the first sample from the local
+        Jacobian d z / d[p(tau), v(tau)] (C, K, 2, 6): (C, K, 2, 6 or 9)."""
+        jac_p, jac_v = local[..., 0:3], local[..., 3:6]
+        tau = self.tau[:, None, None]
+        if self.straight:
+            out = local.copy()
+            out[..., 3:6] += jac_p * tau
+        else:
+            s, c, cos, sin = (a[..., None] for a in (self.s, self.c, self.cos, self.sin))
+            out = np.empty_like(local)
+            out[..., 0:3] = jac_p
+            out[..., 3] = jac_p[..., 0] * s + jac_p[..., 1] * c + jac_v[..., 0] * cos + jac_v[..., 1] * sin
+            out[..., 4] = -jac_p[..., 0] * c + jac_p[..., 1] * s - jac_v[..., 0] * sin + jac_v[..., 1] * cos
+            out[..., 5] = jac_p[..., 2] * self.tau[:, None] + jac_v[..., 2]
+        if with_acceleration:
+            out = np.concatenate([out, 0.5 * jac_p * tau**2 + jac_v * tau], axis=-1)
+        return out
+
+    def propagate(self, states: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Base states (C, 8) and covariances (C, 8, 8) carried to the last sample (the acceleration,
+        if any, taken as known)."""
+        def rotation_like(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # [[a, -b], [b, a]], (C, 2, 2)
+            return np.stack([np.stack([a, -b], -1), np.stack([b, a], -1)], -2)
+
+        f = np.tile(np.eye(8), (len(states), 1, 1))
+        f[:, 0:2, 3:5] = rotation_like(self.s[:, -1], self.c[:, -1])
+        f[:, 2, 5] = self.tau[-1]
+        f[:, 3:5, 3:5] = rotation_like(self.cos[:, -1], self.sin[:, -1])
+        moved = (f @ states[..., None])[..., 0]
+        if self.accelerations is not None:
+            moved[:, 0:3] += 0.5 * self.accelerations * self.tau[-1] ** 2
+            moved[:, 3:6] += self.accelerations * self.tau[-1]
+        return moved, f @ covariances @ f.transpose(0, 2, 1)
 
 
 def _uninformed_bias_sd(burst: Burst) -> float:
@@ -182,15 +259,21 @@ def _normal_equations(jacobian: np.ndarray, residual: np.ndarray, white: np.ndar
     return transposed @ whitened, (transposed @ residual.reshape(count, 2 * samples, 1))[..., 0]
 
 
-def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarray, biases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Chi-square of the burst for candidate trajectories p(t) = p + v (t - t0): (C,), and the whitened
-    residuals (C, K, 2)."""
-    tau = burst.times - burst.times[0]
-    trajectory = positions[:, None, :] + velocities[:, None, :] * tau[None, :, None]
-    predicted = burst.measurement_function(
-        trajectory, velocities[:, None, :], burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position
+def _predicted(burst: Burst, positions: np.ndarray, velocities: np.ndarray, motion: CandidateMotion) -> np.ndarray:
+    """[RD, RRD] without biases along each candidate's trajectory: (C, K, 2)."""
+    trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
+    return burst.measurement_function(
+        trajectory, trajectory_velocity, burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position
     )
-    residual = burst.measurements[None] - predicted
+
+
+def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarray, biases: np.ndarray,
+                      motion: CandidateMotion | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Chi-square of the burst for candidate trajectories from p, v at its first time, moving as
+    ``motion`` says (straight without): (C,), and the whitened residuals (C, K, 2)."""
+    if motion is None:
+        motion = CandidateMotion(burst.times - burst.times[0], np.zeros(len(positions)))
+    residual = burst.measurements[None] - _predicted(burst, positions, velocities, motion)
     residual[..., 0] -= biases[:, None]
     whitened = residual @ whitener(burst).T
     return np.sum(whitened**2, axis=(1, 2)), whitened
@@ -227,9 +310,13 @@ class LCMAPInitializer:
     separation = 2.0  # m: closer candidates on one sheet are one hypothesis
     grid_samples = 20  # burst samples the grid stage uses at most (the refinement uses all)
 
-    def __init__(self, config: InitializerConfig, region: Box):
+    def __init__(self, config: InitializerConfig, region: Box, motion: str = "cv"):
+        """``motion``: the filter's motion model, which the fit follows - ``cv`` straight lines,
+        ``ctrv`` turns (a grid of rates, then fitted), ``ca`` a fitted constant acceleration."""
         self.config = config
         self.region = region
+        self.fit_turn, self.fit_acceleration = motion == "ctrv", motion == "ca"
+        self.turn_rates = config.turn_rates if self.fit_turn else np.zeros(1)  # rad/s, every candidate is tried at each
         self.directions = fibonacci_directions(config.candidate_directions)
 
     def candidates(self, burst: Burst) -> tuple[np.ndarray, np.ndarray]:
@@ -248,51 +335,71 @@ class LCMAPInitializer:
         )
         return points[keep], biases[keep]
 
-    def _jacobians(self, burst: Burst, positions: np.ndarray, velocities: np.ndarray) -> np.ndarray:
-        """d[RD, RRD]_k / d[p(t0), v] for every candidate and burst sample: (C, K, 2, 6)."""
-        tau = burst.times - burst.times[0]
-        trajectory = positions[:, None, :] + velocities[:, None, :] * tau[None, :, None]
-        local = measurement_jacobian(trajectory, velocities[:, None, :], burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position)[..., :6]
-        jac = local.copy()
-        jac[..., 3:6] += local[..., 0:3] * tau[None, :, None, None]  # p(t_k) = p + v tau_k
-        return jac
+    @staticmethod
+    def _jacobians(burst: Burst, positions: np.ndarray, velocities: np.ndarray, motion: CandidateMotion,
+                   with_acceleration: bool = False) -> np.ndarray:
+        """d[RD, RRD]_k / d[p(t0), v(t0) (, a)] for every candidate and burst sample: (C, K, 2, 6 or 9)."""
+        trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
+        local = measurement_jacobian(trajectory, trajectory_velocity, burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position)
+        return motion.chain(local[..., :6], with_acceleration)
 
-    def _solve_velocities(self, burst: Burst, positions: np.ndarray, biases: np.ndarray) -> np.ndarray:
+    def _solve_velocities(self, burst: Burst, positions: np.ndarray, biases: np.ndarray, motion: CandidateMotion) -> tuple[np.ndarray, np.ndarray]:
+        """MAP velocities for fixed positions, and the Jacobians (C, K, 2, 6) of the last linearization."""
         white = whitener(burst)
         prior = np.eye(3) / self.config.velocity_prior_sd**2
         velocities = np.zeros_like(positions)
         for _ in range(self.velocity_iterations):
-            _, residual = _burst_chi_square(burst, positions, velocities, biases)
-            jac_v = self._jacobians(burst, positions, velocities)[..., 3:6]  # (C, K, 2, 3)
-            normal, gradient = _normal_equations(jac_v, residual, white)
+            _, residual = _burst_chi_square(burst, positions, velocities, biases, motion)
+            jac = self._jacobians(burst, positions, velocities, motion)
+            normal, gradient = _normal_equations(jac[..., 3:6], residual, white)
             normal = normal + prior
             gradient = gradient - velocities @ prior
             velocities = velocities + np.linalg.solve(normal, gradient[..., None])[..., 0]
-        return velocities
+        return velocities, jac
 
-    def _score(self, burst: Burst, positions, velocities, biases):
-        """MAP objective J - lambda log det F for each candidate, J itself, and the information F (C, 6, 6)."""
+    def _score(self, burst: Burst, positions, velocities, biases, motion: CandidateMotion, jacobians=None):
+        """MAP objective J - lambda log det F for each candidate, J itself, and the information F (C, 6, 6).
+
+        F uses ``jacobians`` when given (the grid passes those of its velocity solve's last step, one
+        small Gauss-Newton step away, which saves a third of the grid's cost).
+        """
         c = self.config
-        chi_square, _ = _burst_chi_square(burst, positions, velocities, biases)
+        chi_square, _ = _burst_chi_square(burst, positions, velocities, biases, motion)
         chi_square = chi_square + np.sum(velocities**2, axis=1) / c.velocity_prior_sd**2
-        jac = self._jacobians(burst, positions, velocities)
+        jac = self._jacobians(burst, positions, velocities, motion) if jacobians is None else jacobians
         prior = np.diag([1 / c.position_sd**2] * 3 + [1 / c.velocity_prior_sd**2] * 3)
         information = _normal_equations(jac, np.zeros(jac.shape[:3]), whitener(burst))[0] + prior
         _, logdet = np.linalg.slogdet(information)
         return chi_square - c.information_weight * logdet, chi_square, information
 
-    def _refine(self, burst: Burst, positions, velocities, biases):
-        """Gauss-Newton on (p, v) jointly over the whole burst, from the best grid candidates.
+    def _motion(self, tau: np.ndarray, theta: np.ndarray, turn_rates: np.ndarray) -> CandidateMotion:
+        """The candidates' motion for parameters theta = [p, v, (omega | a)] (the turn rate from theta when fitted)."""
+        if self.fit_turn:
+            return CandidateMotion(tau, theta[:, 6])
+        return CandidateMotion(tau, turn_rates, theta[:, 6:9] if self.fit_acceleration else None)
 
-        The grid spacing on the locus is coarse against a long burst's precision, so the grid only
-        finds the basin; these steps find its bottom.
+    def _refine(self, burst: Burst, positions, velocities, biases, turn_rates):
+        """Gauss-Newton jointly over the whole burst, from the best grid candidates, on (p, v) and the
+        motion's own parameter: the turn rate (its derivative by central differences) or the acceleration.
+
+        The grid spacing on the locus (and in turn rate) is coarse against a long burst's precision, so
+        the grid only finds the basin; these steps find its bottom. Returns theta = [p, v, (omega | a)].
         """
+        c = self.config
         white = whitener(burst)
-        prior = np.diag([1e-6] * 3 + [1 / self.config.velocity_prior_sd**2] * 3)
-        theta = np.concatenate([positions, velocities], axis=1)
+        tau = burst.times - burst.times[0]
+        extra_prior = [1 / c.max_turn_rate**2] if self.fit_turn else [1 / c.acceleration_prior_sd**2] * 3 if self.fit_acceleration else []
+        prior = np.diag([1e-6] * 3 + [1 / c.velocity_prior_sd**2] * 3 + extra_prior)
+        start = [turn_rates[:, None]] if self.fit_turn else [np.zeros_like(positions)] if self.fit_acceleration else []
+        theta = np.concatenate([positions, velocities] + start, axis=1)
         for _ in range(self.refine_iterations):
-            _, residual = _burst_chi_square(burst, theta[:, :3], theta[:, 3:], biases)
-            jac = self._jacobians(burst, theta[:, :3], theta[:, 3:])
+            motion = self._motion(tau, theta, turn_rates)
+            _, residual = _burst_chi_square(burst, theta[:, :3], theta[:, 3:6], biases, motion)
+            jac = self._jacobians(burst, theta[:, :3], theta[:, 3:6], motion, self.fit_acceleration)
+            if self.fit_turn:
+                step_size = 1e-4  # rad/s
+                ahead, behind = (_predicted(burst, theta[:, :3], theta[:, 3:6], CandidateMotion(tau, theta[:, 6] + d)) for d in (step_size, -step_size))
+                jac = np.concatenate([jac, ((ahead - behind) / (2 * step_size))[..., None]], axis=-1)
             normal, gradient = _normal_equations(jac, residual, white)
             normal = normal + prior
             gradient[:, 3:] -= theta[:, 3:] @ prior[3:, 3:]
@@ -300,10 +407,13 @@ class LCMAPInitializer:
             # Keep each step within a few metres: far from the basin the linearization is poor.
             scale = np.minimum(1.0, 5.0 / np.maximum(np.linalg.norm(step[:, :3], axis=1), 1e-12))
             theta = theta + step * scale[:, None]
-        return theta[:, :3], theta[:, 3:]
+            if self.fit_turn:
+                theta[:, 6] = np.clip(theta[:, 6], -c.max_turn_rate, c.max_turn_rate)
+        return theta
 
-    def _plausible(self, positions, velocities, tau_end):
-        end = positions + velocities * tau_end
+    def _plausible(self, positions, velocities, motion: CandidateMotion):
+        """Not too fast, and inside the region at the burst's end (``motion`` over [0, burst length])."""
+        end = motion.trajectory(positions, velocities)[0][:, -1]
         region = self.region
         return (
             (np.linalg.norm(velocities, axis=1) <= self.config.max_source_speed)
@@ -317,24 +427,28 @@ class LCMAPInitializer:
         if len(positions) == 0:
             logger.warning("LC-MAP found no candidate on the locus inside the region; falling back to naive")
             return NaiveInitializer(c)(burst, rng)
-        tau_end = burst.times[-1] - burst.times[0]
+        # Every candidate position at every turn rate of the grid (constant velocity alone by default).
+        turn_rates = np.repeat(self.turn_rates, len(positions))
+        positions, biases = np.tile(positions, (len(self.turn_rates), 1)), np.tile(biases, len(self.turn_rates))
+        tau_end = np.array([burst.times[-1] - burst.times[0]])
         # The grid only has to find basins: on a long window a 1 Hz subset of the burst is enough.
         stride = -(-len(burst.times) // self.grid_samples)
         grid_burst = replace(burst, **{name: getattr(burst, name)[::stride] for name in ("times", "measurements", "receiver_positions", "receiver_velocities")})
-        velocities = self._solve_velocities(grid_burst, positions, biases)
-        score, _, _ = self._score(grid_burst, positions, velocities, biases)
-        plausible = self._plausible(positions, velocities, tau_end)
+        grid_motion = CandidateMotion(grid_burst.times - grid_burst.times[0], turn_rates)
+        velocities, jacobians = self._solve_velocities(grid_burst, positions, biases, grid_motion)
+        score, _, _ = self._score(grid_burst, positions, velocities, biases, grid_motion, jacobians)
+        plausible = self._plausible(positions, velocities, CandidateMotion(tau_end, turn_rates))
         score = np.where(plausible, score, np.inf) if plausible.any() else score
         # Refine the best few of every whole-period sheet and the best overall.
         order = np.argsort(score)
-        chosen = list(order[: self.refine_best])
-        for bias in np.unique(biases):
-            chosen += [i for i in order if biases[i] == bias][: self.refine_per_sheet]
-        chosen = np.unique(chosen)
-        refined_p, refined_v = self._refine(burst, positions[chosen], velocities[chosen], biases[chosen])
-        biases = biases[chosen]
-        refined_score, chi_square, information = self._score(burst, refined_p, refined_v, biases)
-        ok = self._plausible(refined_p, refined_v, tau_end) & np.isfinite(refined_score)
+        on_sheets = [order[biases[order] == bias][: self.refine_per_sheet] for bias in np.unique(biases)]
+        chosen = np.unique(np.concatenate([order[: self.refine_best], *on_sheets]))
+        biases, turn_rates = biases[chosen], turn_rates[chosen]
+        theta = self._refine(burst, positions[chosen], velocities[chosen], biases, turn_rates)
+        refined_p, refined_v = theta[:, 0:3], theta[:, 3:6]
+        motion = self._motion(burst.times - burst.times[0], theta, turn_rates)
+        refined_score, chi_square, information = self._score(burst, refined_p, refined_v, biases, motion)
+        ok = self._plausible(refined_p, refined_v, self._motion(tau_end, theta, turn_rates)) & np.isfinite(refined_score)
         if ok.any():
             refined_score = np.where(ok, refined_score, np.inf)
         order = [i for i in np.argsort(refined_score, kind="stable") if np.isfinite(refined_score[i])] or [int(np.argmin(refined_score))]
@@ -344,11 +458,15 @@ class LCMAPInitializer:
         covariances[:, :6, :6] = np.linalg.inv(information[kept]) * c.covariance_inflation
         covariances[:, 6, 6] = c.range_bias_sd**2
         covariances[:, 7, 7] = c.rate_bias_sd**2
-        states, covariances = _cv_propagate(states, covariances, tau_end)
+        states, covariances = self._motion(tau_end, theta[kept], turn_rates[kept]).propagate(states, covariances)
         # The score ranks candidates; the filters' weights are likelihoods, so they start from the
         # burst's own: exp(-J / 2), relative to the likeliest kept hypothesis.
         log_weights = -0.5 * (chi_square[kept] - chi_square[kept].min())
-        return InitialEstimate(states, covariances, log_weights, candidates=int(plausible.sum()))
+        return InitialEstimate(
+            states, covariances, log_weights, int(plausible.sum()),
+            turn_rates=theta[kept, 6] if self.fit_turn else None,
+            accelerations=theta[kept, 6:9] if self.fit_acceleration else None,
+        )
 
 
 def distinct_hypotheses(order, positions: np.ndarray, sheets: np.ndarray, limit: int, separation: float,
@@ -373,10 +491,10 @@ def distinct_hypotheses(order, positions: np.ndarray, sheets: np.ndarray, limit:
     return kept
 
 
-def make_initializer(name: str, config: InitializerConfig, region: Box) -> Initializer:
-    """The initializer called ``name``: lcmap, naive, random or tdoa-ls."""
+def make_initializer(name: str, config: InitializerConfig, region: Box, motion: str = "cv") -> Initializer:
+    """The initializer called ``name``: lcmap (fitting the filter's ``motion`` model), naive, random or tdoa-ls."""
     if name == "lcmap":
-        return LCMAPInitializer(config, region)
+        return LCMAPInitializer(config, region, motion)
     simple = {"naive": NaiveInitializer, "random": RandomInitializer, "tdoa-ls": TdoaLeastSquaresInitializer}
     if name not in simple:
         raise ValueError(f"unknown initializer {name!r}; allowed: ['lcmap', 'naive', 'random', 'tdoa-ls']")

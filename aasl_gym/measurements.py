@@ -32,8 +32,11 @@ class Propagation:
 
 def direct_measurement(position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
     """Noise-free direct-path [RD, RRD], shape ``(..., 2)``."""
-    rd = geometry.range_difference(position, mobile, fixed)
-    rrd = geometry.range_rate_difference(position, velocity, mobile, mobile_velocity, fixed)
+    # The geometry's RD and RRD, sharing the two ranges and unit vectors (this runs once per sigma point).
+    distance_mobile, unit_mobile = geometry.ranges(position, mobile)
+    distance_fixed, unit_fixed = geometry.ranges(position, fixed)
+    rd = distance_mobile - distance_fixed
+    rrd = geometry.range_rate(unit_mobile, velocity, mobile_velocity) - geometry.range_rate(unit_fixed, velocity, geometry.ZERO3)
     return np.stack([rd, rrd], axis=-1)
 
 

@@ -90,6 +90,9 @@ def main() -> None:
     for label, kwargs in (
         ("free field, direct-path filter", dict(reflections=False, multipath="none", source_motion="static")),
         ("free field, direct-path filter, cv source", dict(reflections=False, multipath="none", source_motion="cv")),
+        ("free field, cv source, no LC-MAP re-seeding", dict(reflections=False, multipath="none", source_motion="cv",
+                                                            config={"initializer": {"reseed_interval": 0.0}})),
+        ("free field, ctrv source and filter", dict(reflections=False, multipath="none", source_motion="ctrv", filter_model="ctrv")),
         ("reflections on, phasor filter (default)", dict(source_motion="cv")),
     ):
         rate = statistics.median(env_steps_per_second("AASL-Helix-v0", args.episodes, **kwargs) for _ in range(max(1, args.repeats // 2)))

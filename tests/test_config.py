@@ -38,6 +38,9 @@ def test_default_yaml_is_the_default():
     ({"source": {"confined": "no"}}, r"source\.confined: must be true or false"),
     ({"initializer": {"hypotheses": 0}}, r"initializer\.hypotheses: must be an integer >= 1"),
     ({"filter": {"prune_log_ratio": 0}}, r"filter\.prune_log_ratio: must be a finite number > 0"),
+    ({"initializer": {"turn_rate_steps": 0}}, r"initializer\.turn_rate_steps: must be an integer >= 1"),
+    ({"initializer": {"max_turn_rate": -0.1}}, r"initializer\.max_turn_rate: must be a finite number > 0"),
+    ({"initializer": {"acceleration_prior_sd": 0}}, r"initializer\.acceleration_prior_sd: must be a finite number > 0"),
 ])
 def test_bad_values_are_named(data, match):
     with pytest.raises(ConfigError, match=match):
