@@ -20,6 +20,7 @@ import yaml
 
 SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "mixed")
 MEASUREMENT_MODES = ("signal", "geometric")
+SIGNAL_PATHS = ("fast", "hardware")
 INITIALIZERS = ("lcmap", "naive", "random", "tdoa-ls")
 MULTIPATH_MODELS = ("none", "linear", "phasor")
 FILTER_MODELS = ("cv", "ca", "ctrv")
@@ -153,16 +154,40 @@ class ReceiverConfig:
 class MeasurementConfig:
     """How [RD, RRD] is produced each step."""
 
-    mode: str = "geometric"  # geometric now; signal (the front end) lands with its own issue
+    mode: str = "geometric"  # geometric (z = h(x) + noise) or signal (the acoustic front end, see signal)
     rate: float = 5.0  # Hz, one measurement per env step
-    range_difference_sd: float = 0.05  # m, sigma_R (geometric mode)
-    range_rate_difference_sd: float = 0.02  # m/s, sigma_V (geometric mode)
+    range_difference_sd: float = 0.05  # m, sigma_R (geometric mode; signal mode derives it from each frame's SNR)
+    range_rate_difference_sd: float = 0.02  # m/s, sigma_V (geometric mode; likewise)
 
     def __post_init__(self) -> None:
         _choice(self.mode, MEASUREMENT_MODES, "measurement.mode")
         _positive(self.rate, "measurement.rate")
         _positive(self.range_difference_sd, "measurement.range_difference_sd")
         _positive(self.range_rate_difference_sd, "measurement.range_rate_difference_sd")
+
+
+@dataclass(frozen=True)
+class SignalConfig:
+    """The acoustic front end (measurement.mode = signal): synthesis and estimation of one frame per step."""
+
+    path: str = "fast"  # fast (complex baseband) or hardware (real samples at sample_rate)
+    frame_duration: float = 0.2  # s, centred on the step's time
+    guard: float = 0.02  # s synthesized at each end of a frame and dropped after filtering
+    sample_rate: float = 200_000.0  # Hz, hardware path
+    envelope_rate: float = 10_000.0  # Hz, the fast path's rate and the rate both paths estimate at
+    windows: int = 10  # short windows per frame for the delay track (TDOA mean, FDOA slope)
+    sd_inflation: float = 1.5  # the filter's R uses the Cramer-Rao sd from the frame's SNRs times this
+    min_range_difference_sd: float = 0.002  # m, floor of the filter's RD sd
+    min_range_rate_difference_sd: float = 0.005  # m/s, floor of the filter's RRD sd
+
+    def __post_init__(self) -> None:
+        _choice(self.path, SIGNAL_PATHS, "signal.path")
+        for name in ("frame_duration", "sample_rate", "envelope_rate", "min_range_difference_sd", "min_range_rate_difference_sd"):
+            _positive(getattr(self, name), f"signal.{name}")
+        _non_negative(self.guard, "signal.guard")
+        _check(isinstance(self.windows, int) and self.windows >= 2, "signal.windows", f"must be an integer >= 2, got {self.windows!r}")
+        _check(self.sd_inflation >= 1, "signal.sd_inflation", "must be >= 1")
+        _check(self.envelope_rate <= self.sample_rate, "signal.envelope_rate", f"must not exceed signal.sample_rate = {self.sample_rate}")
 
 
 @dataclass(frozen=True)
@@ -308,6 +333,7 @@ class EnvConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     receiver: ReceiverConfig = field(default_factory=ReceiverConfig)
     measurement: MeasurementConfig = field(default_factory=MeasurementConfig)
+    signal: SignalConfig = field(default_factory=SignalConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
     initializer: InitializerConfig = field(default_factory=InitializerConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
@@ -324,6 +350,8 @@ class EnvConfig:
         _check(self.source.initial_radius <= self.world.region_radius, "source.initial_radius",
                f"must not exceed world.region_radius = {self.world.region_radius}")
         _check(2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source")
+        _check(self.signal.frame_duration <= 1.0 / self.measurement.rate + 1e-12, "signal.frame_duration",
+               f"must not exceed one step (1 / measurement.rate = {1.0 / self.measurement.rate} s)")
 
     @property
     def dt(self) -> float:

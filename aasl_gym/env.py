@@ -15,7 +15,7 @@ from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_con
 from aasl_gym.estimator import SourceTracker
 from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
-from aasl_gym.measurements import GeometricSensor, Propagation, direct_measurement
+from aasl_gym.measurements import GeometricSensor, Propagation, SignalSensor, direct_measurement
 from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 
@@ -94,8 +94,12 @@ class AASLEnv(gym.Env):
     the physics and sign conventions. Each source follows its motion model exactly (only surface and
     bed reflect it), so a fast one can leave the surveillance region within an episode; set
     ``source.confined`` for a source that turns back at the region's edge. LC-MAP starts a bank of
-    UKFs, one per likely whole-period sheet, and (with the CV filter model) re-runs on its growing window
-    for the first 30 s; the reported estimate is the likeliest filter's (``aasl_gym.estimator``).
+    UKFs, one per likely whole-period sheet, and re-runs on its growing window (fitting the filter's
+    motion model) for the first 60 s; the reported estimate is the likeliest filter's
+    (``aasl_gym.estimator``). ``measurement.mode`` chooses how [RD, RRD] is made: ``geometric`` (the
+    geometry plus Gaussian noise, as in the reference paper's study) or ``signal`` (the acoustic front
+    end of ``aasl_gym.acoustics`` synthesizes and processes both channels for a 0.2 s frame each step,
+    and the filter's R follows each frame's measured SNR).
 
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: a velocity command scaled by ``receiver.max_speed`` (1.5 m/s). In
@@ -150,7 +154,7 @@ class AASLEnv(gym.Env):
     ``receiver_velocity``, ``receiver_position_reported``, ``fixed_position``, ``estimate_position``,
     ``estimate_velocity`` and ``position_error`` (NaN until initialized), ``position_covariance``
     (3x3), ``measurement``, ``measurement_true`` (noise-free direct-path [RD, RRD]), ``snr_db`` (of the weaker
-    channel, from the source level, spreading and noise level), ``initialized``, ``converged`` (error below the threshold now),
+    channel: in signal mode as the front end measures it, else from the source level, spreading and noise level), ``initialized``, ``converged`` (error below the threshold now),
     ``reinitialized``, ``fim_logdet``, ``reward_terms``. On the last step also ``convergence_time``,
     ``rmse``, ``final_error``, ``success`` (threshold -> bool), ``time_to_first_estimate`` and
     ``reinitializations``. Values that can be NaN (``position_error`` and the last-step metrics) are 0-d float64 arrays, so that two infos from the same seed compare equal NaN for NaN.
@@ -163,7 +167,7 @@ class AASLEnv(gym.Env):
     ``"rgb_array"`` (works headless) or ``"human"`` (a matplotlib window).
 
     ## Version History
-    * v0: initial version (geometric measurement mode).
+    * v0: initial version (geometric and signal measurement modes).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
@@ -176,10 +180,6 @@ class AASLEnv(gym.Env):
         **overrides: Any,
     ):
         self.config = resolve_config(config, **overrides)
-        if self.config.measurement.mode == "signal":
-            raise NotImplementedError(
-                "measurement='signal' (the acoustic front end) is not implemented yet; use measurement='geometric'"
-            )
         if patrol is not None and patrol not in PATROLS:
             raise ConfigError(f"patrol={patrol!r}: allowed values are {list(PATROLS)} or None")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -202,7 +202,12 @@ class AASLEnv(gym.Env):
         self.filter_covariance = self.acoustic_covariance + (np.diag(navigation_variance) if cfg.filter.compensate_navigation else 0.0)
         self.propagation = Propagation.from_config(cfg.world, cfg.source.frequency)
         period = cfg.wavelength if cfg.source.waveform == "tone" else None
-        self.sensor = GeometricSensor(measurement_sd, self.propagation, cfg.world.reflections, period)
+        self.signal_mode = cfg.measurement.mode == "signal"
+        if self.signal_mode:
+            self.sensor = SignalSensor(cfg, period)
+        else:
+            self.sensor = GeometricSensor(measurement_sd, self.propagation, cfg.world.reflections, period)
+        self.navigation_covariance = np.diag(navigation_variance) if cfg.filter.compensate_navigation else np.zeros((2, 2))
         self.tracker = SourceTracker(cfg, self.source_region, self.filter_covariance)
         self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
@@ -226,7 +231,7 @@ class AASLEnv(gym.Env):
         self.receiver_velocity = np.zeros(3)
         self.navigation.reset()
         self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, self.dt)
-        self.sensor.reset()
+        self.sensor.reset(rng)
         self.tracker.reset()
         self.information.reset(self.prior_covariance)
         self._time = 0.0
@@ -269,16 +274,18 @@ class AASLEnv(gym.Env):
         self._steps += 1
 
         # 2. measure, from the true geometry; navigation reports the robot's state with its error
-        z = self.sensor.measure(rng, self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed, cfg.source.range_rate_bias)
+        z = self.sensor.measure(rng, self._time, self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed, cfg.source.range_rate_bias)
+        # Signal mode: the front end says how noisy this frame is (from its SNRs); geometric: fixed R_eff.
+        noise = self.sensor.covariance + self.navigation_covariance if self.signal_mode else self.filter_covariance
         self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, dt)
 
         # 3. estimate
-        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, rng)
+        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, rng, noise if self.signal_mode else None)
         estimate = self.tracker.position
         estimate_velocity = self.tracker.velocity
         linearization = np.concatenate([estimate, estimate_velocity]) if out.initialized else self.prior_mean[:6]
         jacobian = measurement_jacobian(linearization[:3], linearization[3:], self.reported_position, self.reported_velocity, self.fixed)
-        fim_logdet = self.information.step(dt, jacobian, self.filter_covariance)
+        fim_logdet = self.information.step(dt, jacobian, noise)
         error = float(np.linalg.norm(estimate - self.source.position)) if out.initialized else math.nan
         self._latest[:2] = z
         self._latest[2:] = out.innovation / out.innovation_sd if np.all(np.isfinite(out.innovation)) else 0.0
@@ -315,7 +322,7 @@ class AASLEnv(gym.Env):
             "position_covariance": self.tracker.position_covariance,
             "measurement": np.asarray(z, dtype=float),
             "measurement_true": direct_measurement(self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed),
-            "snr_db": self._snr_db(),
+            "snr_db": float(10 * np.log10(np.min(self.sensor.snr))) if self.signal_mode else self._snr_db(),
             "initialized": out.initialized,
             "converged": bool(converged),
             "reinitialized": out.reinitialized,

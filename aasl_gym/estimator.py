@@ -96,8 +96,13 @@ class SourceTracker:
 
     def _burst(self, length: int) -> Burst:
         rows = list(self.history)[-length:]
-        times, z, positions, velocities = (np.array(column) for column in zip(*rows))
-        return Burst(times, z, positions, velocities, self.fixed, self.noise_covariance, self.wavelength, self.measurement_function)
+        times, z, positions, velocities = (np.array(column) for column in list(zip(*rows))[:4])
+        # An initializer weighs a burst with one R: the rows' own when they share it, else their mean
+        # (signal mode: R follows each frame's SNR, which changes slowly over a burst).
+        covariances = [row[4] for row in rows]
+        shared = all(c is covariances[0] for c in covariances)
+        noise = covariances[0] if shared else np.mean(covariances, axis=0)
+        return Burst(times, z, positions, velocities, self.fixed, noise, self.wavelength, self.measurement_function)
 
     def _reachable(self, time: float) -> Box:
         """Where the source can be at ``time``: the start region grown by the fastest plausible travel."""
@@ -197,12 +202,12 @@ class SourceTracker:
             return False
         return float(np.mean(hypothesis.nis)) > self.config.filter.divergence_nis
 
-    def _assimilate(self, hypothesis: Hypothesis, time: float, dt: float, z: np.ndarray, hx) -> bool:
-        """Predict and update one hypothesis; False if it must be dropped."""
+    def _assimilate(self, hypothesis: Hypothesis, time: float, dt: float, z: np.ndarray, noise: np.ndarray, hx) -> bool:
+        """Predict and update one hypothesis with measurement noise covariance ``noise``; False if it must be dropped."""
         ukf = hypothesis.ukf
         try:
             ukf.predict(dt)
-            ukf.update(z, self.noise_covariance, hx)
+            ukf.update(z, noise, hx)
         except np.linalg.LinAlgError:
             return False
         hypothesis.log_weight += ukf.log_likelihood
@@ -216,9 +221,12 @@ class SourceTracker:
             h.log_weight -= best  # keep the weights relative, the best at 0
         self.bank.sort(key=lambda h: -h.log_weight)
 
-    def step(self, time: float, z: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, rng: np.random.Generator) -> TrackerOutput:
-        """Assimilate one measurement ``z = [RD, RRD]`` taken at ``time`` with the reported receiver state."""
-        self.history.append((time, np.asarray(z, dtype=float), np.asarray(mobile, dtype=float), np.asarray(mobile_velocity, dtype=float)))
+    def step(self, time: float, z: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, rng: np.random.Generator,
+             noise_covariance: np.ndarray | None = None) -> TrackerOutput:
+        """Assimilate one measurement ``z = [RD, RRD]`` taken at ``time`` with the reported receiver state;
+        ``noise_covariance`` is this measurement's R (the tracker's fixed one if None)."""
+        noise = self.noise_covariance if noise_covariance is None else np.asarray(noise_covariance, dtype=float)
+        self.history.append((time, np.asarray(z, dtype=float), np.asarray(mobile, dtype=float), np.asarray(mobile_velocity, dtype=float), noise))
         if np.isnan(self.first_time):
             self.first_time = time
         nan2 = np.full(2, np.nan)
@@ -230,7 +238,7 @@ class SourceTracker:
         dt = time - self.last_time
         self.last_time = time
         hx = self._hx(mobile, mobile_velocity)
-        self.bank = [h for h in self.bank if self._assimilate(h, time, dt, z, hx)]
+        self.bank = [h for h in self.bank if self._assimilate(h, time, dt, z, noise, hx)]
         if self.bank:
             self._prune()
             if self._reseed_due(time):

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aasl_gym import geometry
-from aasl_gym.config import WorldConfig
+from aasl_gym import acoustics, geometry
+from aasl_gym.config import EnvConfig, WorldConfig
 
 
 @dataclass(frozen=True)
@@ -90,11 +90,55 @@ class GeometricSensor:
         self.reflections = reflections
         self.unwrapper = Unwrapper(period)
 
-    def reset(self) -> None:
+    def reset(self, rng: np.random.Generator | None = None) -> None:
         self.unwrapper.reset()
 
-    def measure(self, rng: np.random.Generator, position, velocity, mobile, mobile_velocity, fixed, range_rate_bias: float = 0.0) -> np.ndarray:
+    def measure(self, rng: np.random.Generator, time: float, position, velocity, mobile, mobile_velocity, fixed,
+                range_rate_bias: float = 0.0) -> np.ndarray:
+        """z at ``time`` (s; the geometry is taken as given) from the true source and receiver states."""
         model = "phasor" if self.reflections else "none"
         truth = multipath_measurement(model, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
         noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
         return np.array([self.unwrapper(noisy[0]), noisy[1] + range_rate_bias])
+
+
+class SignalSensor:
+    """z from the acoustic front end (SPEC section 3, :mod:`aasl_gym.acoustics`): one synthesized frame per
+    step, centred on the step's time, its RD unwrapped like the geometric sensor's.
+
+    It also says how noisy that z is: ``covariance`` is the Cramer-Rao covariance of a tone frame at the
+    two channels' *measured* SNRs (:func:`~aasl_gym.acoustics.tone_measurement_sd`), times
+    ``signal.sd_inflation`` in sd, floored at ``signal.min_*_sd``; the env gives it to the filter as
+    this step's R (plus the navigation term). ``range_rate_bias`` (a clock-rate offset) is added to RRD.
+    """
+
+    def __init__(self, config: EnvConfig, period: float | None):
+        world, source, sig = config.world, config.source, config.signal
+        self.config = config
+        self.front_end = acoustics.FrontEnd(
+            waveform_kind=source.waveform, frequency=source.frequency, path=sig.path, frame=sig.frame_duration,
+            guard=sig.guard, sample_rate=sig.sample_rate, envelope_rate=sig.envelope_rate, windows=sig.windows,
+            sound_speed=world.sound_speed, source_level_db=source.source_level_db, noise_level_db=world.noise_level_db,
+            reflections=world.reflections, water_depth=world.water_depth, surface_reflection=world.surface_reflection,
+            bed_reflection=world.bed_reflection, max_delay=2.5 * world.region_radius / world.sound_speed,
+        )
+        self.unwrapper = Unwrapper(period)
+        self.snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
+        self.covariance = np.diag([sig.min_range_difference_sd**2, sig.min_range_rate_difference_sd**2])
+
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        self.unwrapper.reset()
+        self.front_end.waveform = None
+        if rng is not None:
+            self.front_end.reset(rng)
+
+    def measure(self, rng: np.random.Generator, time: float, position, velocity, mobile, mobile_velocity, fixed,
+                range_rate_bias: float = 0.0) -> np.ndarray:
+        result, self.snr = self.front_end.measure(rng, time, position, velocity, mobile, mobile_velocity, fixed)
+        sig, waveform = self.config.signal, self.front_end.waveform
+        band = waveform.band
+        sd = np.array(acoustics.tone_measurement_sd(self.snr[0], self.snr[1], self.config.world.sound_speed / waveform.carrier,
+                                                    band[1] - band[0], sig.frame_duration))
+        sd = np.maximum(sig.sd_inflation * sd, [sig.min_range_difference_sd, sig.min_range_rate_difference_sd])
+        self.covariance = np.diag(sd**2)
+        return np.array([self.unwrapper(result.range_difference), result.range_rate_difference + range_rate_bias])

@@ -95,6 +95,8 @@ def test_bad_override_names_the_keyword():
         gym.make("AASL-v0", reflections="no")
 
 
-def test_signal_mode_is_not_there_yet():
-    with pytest.raises(NotImplementedError, match="measurement='signal'"):
-        gym.make("AASL-v0", measurement="signal")
+def test_bad_signal_settings_are_named():
+    with pytest.raises(ConfigError, match=r"signal\.path: 'slow' is not one of \['fast', 'hardware'\]"):
+        gym.make("AASL-v0", measurement="signal", config={"signal": {"path": "slow"}})
+    with pytest.raises(ConfigError, match=r"signal\.frame_duration: must not exceed one step"):
+        gym.make("AASL-v0", config={"signal": {"frame_duration": 0.5}})

@@ -174,3 +174,34 @@ def test_terminate_on_convergence_option():
             assert info["position_error"] < 30.0 and "convergence_time" in info
             break
     assert terminated
+
+
+SIGNAL = {"measurement": {"mode": "signal"}, "initializer": {"burst_duration": 0.2}}
+
+
+@pytest.mark.parametrize("path", ["fast", "hardware"])
+def test_signal_mode_passes_the_env_checkers_and_repeats_bit_for_bit(path):
+    config = {**SIGNAL, "signal": {"path": path}}
+    gym_check_env(gym.make("AASL-Helix-v0", config=config).unwrapped)
+    env = gym.make("AASL-Helix-v0", config=config, source_motion="cv")
+    assert same(rollout(env, 3, 15), rollout(env, 3, 15))
+
+
+def test_signal_mode_measures_the_geometry_up_to_whole_wavelengths():
+    """Free field: the front end's RD (info['measurement']) is the geometry's (info['measurement_true'])
+    plus one fixed whole number of wavelengths, within a few sd of the R it hands the filter; its RRD
+    matches likewise; the measured SNR is the model's within 1 dB."""
+    env = gym.make("AASL-Helix-v0", config=SIGNAL, source_motion="cv", reflections=False, multipath="none").unwrapped
+    env.reset(seed=11)
+    wavelength = env.config.wavelength
+    offsets, rrd_errors = [], []
+    for _ in range(50):
+        *_, info = env.step(np.zeros(3))
+        sd = np.sqrt(np.diag(env.sensor.covariance))
+        periods = (info["measurement"][0] - info["measurement_true"][0]) / wavelength
+        assert abs(periods - round(periods)) * wavelength < 5 * sd[0]
+        offsets.append(round(periods))
+        rrd_errors.append((info["measurement"][1] - info["measurement_true"][1]) / sd[1])
+        assert info["snr_db"] == pytest.approx(env._snr_db(), abs=1.0)
+    assert len(set(offsets)) == 1
+    assert np.std(rrd_errors) < 1.5  # the R handed to the filter is not too small

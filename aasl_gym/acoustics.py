@@ -1,0 +1,408 @@
+"""The acoustic front end (SPEC section 3), part one: the source waveforms, both hydrophone channels for
+one frame, and [RD, RRD] estimated from them.
+
+Synthesis. Each receiver hears every path k (direct; surface and bed images when reflections are on) as
+``g_k / r_k(t) * s(t - r_k(t) / c)``, with s the emitted waveform and r_k(t) the *time-varying* range
+over the frame (source and receiver move on straight lines through their positions at the frame's
+centre), so the Doppler shift comes from the geometry itself. ``r_k(t)`` is the instantaneous
+source-receiver distance (the quasi-static approximation the SPEC's RD and RRD are defined with).
+Everything is first computed as the *analytic* signal ``sum_k g_k / r_k exp(j Phi(t - r_k / c))``
+(Phi the waveform's phase); the hardware-rate path takes its real part at ``fs`` (200 kHz), the fast
+path its complex envelope ``exp(-j 2 pi f_c t)`` times it, synthesized directly at a low rate.
+
+Amplitudes. ``source_level_db`` is the RMS pressure at 1 m (dB re 1 uPa) and ``noise_level_db`` the
+noise power in the receiver band (dB re 1 uPa^2), so a receiver at range r sees
+SNR = source_level - 20 log10(r) - noise_level (dB) after its band-pass filter.
+
+Filtering. Both paths apply the same 4th-order zero-phase Butterworth band-pass (SciPy's analog
+design, its power gain applied in the frequency domain); the hardware path's one real FFT per channel
+also yields the analytic signal, mixed down and decimated to the fast path's rate in the same step.
+Frames are synthesized with a guard at each end that is dropped after filtering (a receiver records
+continuously, so the guard stands for the neighbouring frames).
+
+Estimation, on the complex envelopes. For a sweep or a hop, the peak of the cross-correlation
+magnitude over the whole frame and the lags the geometry allows gives the coarse delay (whole
+samples); a tone's envelope is flat, so its coarse delay is zero. The frame is then cut into short
+windows; in each, the phase of the normalized cross-correlation at that lag refines the delay to a
+fraction of the carrier period. The delay track's mean is the TDOA (RD = c TDOA) and its time slope
+- the slope of the cross-channel phase - the FDOA (RRD = c d(TDOA)/dt). For a tone only the phase
+carries the delay, so it is known modulo one period; the caller's
+:class:`~aasl_gym.measurements.Unwrapper` resolves that against the previous frame. A sweep's or
+hop's delay is where two Doppler-scaled copies line up, which differs from RD / c by RD * rdot_f / c
+(about 1e-3 of RD); a tone's phase difference *is* the range difference.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import integrate, signal
+
+from aasl_gym import geometry
+
+WAVEFORM_KINDS = ("tone", "sweep", "hop")
+
+
+@dataclass(frozen=True)
+class Waveform:
+    """What the source emits: its phase Phi(t) (rad) and instantaneous frequency (Hz) at emission time t (s).
+
+    ``tone``: f0. ``sweep``: a linear sweep from ``low`` to ``high`` Hz, repeated every ``sweep_period`` s.
+    ``hop``: a phase-continuous tone hopping every ``hop_dwell`` s through ``hops`` (Hz, repeated).
+    ``phase`` is the random phase drawn per episode. A delay is unambiguous only if the waveform does
+    not repeat within twice the largest delay (the sweep's period) and a frame holds many hops.
+    """
+
+    kind: str = "tone"
+    frequency: float = 1000.0  # Hz, f0 of the tone; the carrier f_c of the others is the band centre
+    low: float = 500.0  # Hz
+    high: float = 1500.0  # Hz
+    sweep_period: float = 0.2  # s
+    hop_dwell: float = 0.01  # s
+    hops: tuple[float, ...] = ()  # Hz, the hop sequence
+    phase: float = 0.0  # rad
+
+    def __post_init__(self) -> None:
+        if self.kind not in WAVEFORM_KINDS:
+            raise ValueError(f"waveform {self.kind!r} is not one of {list(WAVEFORM_KINDS)}")
+        if self.kind == "hop" and not self.hops:
+            raise ValueError("a hop waveform needs its hop sequence (hops)")
+
+    @classmethod
+    def random(cls, kind: str, rng: np.random.Generator, frequency: float = 1000.0, low: float = 500.0,
+               high: float = 1500.0, sweep_period: float = 0.2, hop_dwell: float = 0.01, hop_count: int = 256) -> "Waveform":
+        """A waveform with a random phase (and, for ``hop``, a random sequence of ``hop_count`` frequencies)."""
+        hops = tuple(rng.uniform(low, high, hop_count)) if kind == "hop" else ()
+        return cls(kind, frequency, low, high, sweep_period, hop_dwell, hops, float(rng.uniform(0.0, 2 * np.pi)))
+
+    @property
+    def period(self) -> float:
+        """s, the sweep's repetition or the hop's dwell."""
+        return self.sweep_period if self.kind == "sweep" else self.hop_dwell
+
+    @property
+    def carrier(self) -> float:
+        """Hz, the frequency the complex envelope is taken about."""
+        return self.frequency if self.kind == "tone" else 0.5 * (self.low + self.high)
+
+    @property
+    def band(self) -> tuple[float, float]:
+        """Hz, the receiver band (tone: +-10 % about f0)."""
+        return (0.9 * self.frequency, 1.1 * self.frequency) if self.kind == "tone" else (self.low, self.high)
+
+    def phase_at(self, t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        if self.kind == "tone":
+            return self.phase + 2 * np.pi * self.frequency * t
+        cycle, within = np.divmod(t, self.period)
+        if self.kind == "sweep":
+            rate = (self.high - self.low) / self.period  # Hz/s
+            per_cycle = self.low * self.period + 0.5 * rate * self.period**2  # cycles of phase per sweep
+            return self.phase + 2 * np.pi * (cycle * per_cycle + self.low * within + 0.5 * rate * within**2)
+        hops = np.asarray(self.hops)
+        # Phase-continuous: the cycles accumulated over every earlier dwell, then the current one's.
+        accumulated = np.concatenate([[0.0], np.cumsum(hops * self.period)])
+        slot = cycle.astype(np.int64)
+        repeats, index = np.divmod(slot, len(hops))
+        return self.phase + 2 * np.pi * (repeats * accumulated[-1] + accumulated[index] + hops[index] * within)
+
+    def frequency_at(self, t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        if self.kind == "tone":
+            return np.full(t.shape, self.frequency)
+        cycle, within = np.divmod(t, self.period)
+        if self.kind == "sweep":
+            return self.low + (self.high - self.low) / self.period * within
+        return np.asarray(self.hops)[cycle.astype(np.int64) % len(self.hops)]
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One frame as synthesized: sample times (s) and the two channels (mobile, fixed)."""
+
+    times: np.ndarray  # (N,)
+    mobile: np.ndarray  # (N,) real or complex
+    fixed: np.ndarray  # (N,)
+    rate: float  # Hz, sample rate
+    carrier: float  # Hz, 0 for real signals, else the envelope's reference frequency
+
+
+def frame_times(centre: float, duration: float, rate: float) -> np.ndarray:
+    """Sample times (s) of a frame of ``duration`` s centred on ``centre``."""
+    count = int(round(duration * rate))
+    return centre + (np.arange(count) - 0.5 * (count - 1)) / rate
+
+
+def path_sources(source: np.ndarray, source_velocity: np.ndarray, reflections: bool, water_depth: float,
+                 surface_reflection: float, bed_reflection: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(position, velocity, gain) of every path's (image) source: the direct path, then surface and bed."""
+    paths = [(np.asarray(source, float), np.asarray(source_velocity, float), 1.0)]
+    if reflections:
+        (surface, surface_v), (bed, bed_v) = geometry.image_sources(np.asarray(source, float), np.asarray(source_velocity, float), water_depth)
+        paths += [(surface, surface_v, surface_reflection), (bed, bed_v, bed_reflection)]
+    return paths
+
+
+def received_pressure(waveform: Waveform, times: np.ndarray, centre: float, paths, receiver: np.ndarray,
+                      receiver_velocity: np.ndarray, sound_speed: float, amplitude: float, analytic: bool) -> np.ndarray:
+    """Pressure sum_k amplitude g_k / r_k(t) exp(j Phi(t - r_k(t)/c)) at the receiver: complex (N,) with
+    ``analytic``, else its real part (cosines).
+
+    Positions move linearly through their values at ``centre``; ``amplitude`` is the peak pressure at 1 m.
+    """
+    offset = times - centre
+    total = np.zeros(len(times), dtype=complex if analytic else float)
+    for position, velocity, gain in paths:
+        relative, relative_velocity = position - receiver, velocity - receiver_velocity
+        distance = np.sqrt(sum((relative[i] + relative_velocity[i] * offset) ** 2 for i in range(3)))
+        phase = waveform.phase_at(times - distance / sound_speed)
+        total += gain * amplitude / distance * (np.exp(1j * phase) if analytic else np.cos(phase))
+    return total
+
+
+def noise_sd(noise_level_db: float, band: tuple[float, float], rate: float, complex_samples: bool = False) -> float:
+    """Per-sample sd of white noise at ``rate`` Hz whose power inside ``band`` is ``noise_level_db`` (re 1 uPa^2).
+
+    Real samples spread their power over rate / 2 Hz. A complex envelope spreads it over ``rate`` Hz and
+    carries twice the real signal's power, so each of its real and imaginary parts takes sqrt(2) times more.
+    """
+    bandwidth = band[1] - band[0]
+    sd = float(np.sqrt(10 ** (noise_level_db / 10) * (0.5 * rate) / bandwidth))
+    return sd * np.sqrt(2.0) if complex_samples else sd
+
+
+def peak_amplitude(source_level_db: float) -> float:
+    """Peak pressure at 1 m (uPa) of a sinusoid whose RMS is ``source_level_db`` dB re 1 uPa."""
+    return float(np.sqrt(2.0) * 10 ** (source_level_db / 20))
+
+
+def synthesize(waveform: Waveform, centre: float, duration: float, rate: float, baseband: bool, paths,
+               mobile, mobile_velocity, fixed, sound_speed: float, source_level_db: float,
+               noise_level_db: float | None, rng: np.random.Generator | None) -> Channel:
+    """Both channels of one frame: real at ``rate`` Hz (the hardware path) or, with ``baseband``, the
+    complex envelope about the waveform's carrier at ``rate`` Hz (the fast path). ``noise_level_db``
+    None gives noise-free channels."""
+    times = frame_times(centre, duration, rate)
+    amplitude = peak_amplitude(source_level_db)
+    zero = np.zeros(3)
+    channels = [
+        received_pressure(waveform, times, centre, paths, np.asarray(receiver, float), np.asarray(velocity, float), sound_speed, amplitude, baseband)
+        for receiver, velocity in ((mobile, mobile_velocity), (fixed, zero))
+    ]
+    if baseband:
+        mixer = np.exp(-2j * np.pi * waveform.carrier * times)
+        channels = [channel * mixer for channel in channels]
+    if noise_level_db is not None:
+        sd = noise_sd(noise_level_db, waveform.band, rate, complex_samples=baseband)
+        for channel in channels:
+            noise = rng.normal(0.0, sd, (2, len(times)) if baseband else len(times))
+            channel += noise[0] + 1j * noise[1] if baseband else noise
+    return Channel(times, channels[0], channels[1], rate, waveform.carrier if baseband else 0.0)
+
+
+@functools.lru_cache(maxsize=16)
+def _butterworth(band: tuple[float, float], order: int) -> tuple[np.ndarray, np.ndarray]:
+    return signal.butter(order, 2 * np.pi * np.asarray(band), btype="bandpass", analog=True)
+
+
+def band_gain(frequencies: np.ndarray, band: tuple[float, float], order: int = 4) -> np.ndarray:
+    """Power gain |H(f)|^2 of the ``order``-th order Butterworth band-pass (SciPy's analog design) at
+    ``frequencies`` (Hz): what the filter run forward and backward (zero phase) does to each frequency."""
+    numerator, denominator = _butterworth(tuple(band), order)
+    _, response = signal.freqs(numerator, denominator, worN=2 * np.pi * np.abs(frequencies))
+    return np.abs(response) ** 2
+
+
+@functools.lru_cache(maxsize=64)
+def _frame_gain(count: int, rate: float, carrier: float, band: tuple[float, float], analytic_bins: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """(bins, gain): the band gain on a frame's FFT grid, cached since every frame of a run shares it.
+
+    For an envelope of ``count`` samples (``analytic_bins`` None) bins is empty and gain covers its FFT;
+    for the real path, bins are the ``analytic_bins`` positive-frequency bins nearest the carrier's, in
+    FFT order about it. The arrays are read-only.
+    """
+    if analytic_bins is None:
+        bins, gain = np.empty(0, dtype=int), band_gain(np.fft.fftfreq(count, 1 / rate) + carrier, band)
+    else:
+        resolution = rate / count
+        centre = int(round(carrier / resolution))
+        bins = centre + np.fft.fftfreq(analytic_bins, 1 / analytic_bins).astype(int)
+        bins = bins[(bins > 0) & (bins <= count // 2)]
+        gain = band_gain(bins * resolution, band)
+    bins.setflags(write=False)
+    gain.setflags(write=False)
+    return bins, gain
+
+
+@functools.lru_cache(maxsize=16)
+def noise_bandwidth(band: tuple[float, float], order: int = 4) -> float:
+    """Hz, the integral of :func:`band_gain`: how much white noise the zero-phase band-pass lets through."""
+    width = band[1] - band[0]
+    frequencies = np.linspace(max(band[0] - 2 * width, 0.0), band[1] + 2 * width, 4001)
+    return float(integrate.trapezoid(band_gain(frequencies, band, order), frequencies))
+
+
+def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard: float = 0.0) -> Channel:
+    """Both channels as complex envelopes about the waveform's carrier, band-passed, with ``guard``
+    seconds dropped at each end (where the filter wraps around; synthesize that much extra).
+
+    Both paths apply the same zero-phase Butterworth band-pass (:func:`band_gain`) in the frequency
+    domain. Real channels (the hardware path) go through one real FFT each: the band-passed positive
+    frequencies, doubled, are the analytic signal; shifting the bins about the carrier down to zero and
+    keeping those within +-``envelope_rate`` / 2 mixes down and decimates in the same inverse FFT.
+    Complex envelopes (the fast path) are filtered at their own rate.
+    """
+    count = len(channel.times)
+    if channel.carrier:  # already an envelope about the carrier
+        _, gain = _frame_gain(count, channel.rate, channel.carrier, waveform.band, None)
+        filtered = [np.fft.ifft(np.fft.fft(x) * gain) for x in (channel.mobile, channel.fixed)]
+        times, rate = channel.times, channel.rate
+    else:
+        kept = int(round(count * envelope_rate / channel.rate))  # bins of the decimated envelope
+        rate = channel.rate * kept / count
+        resolution = channel.rate / count  # Hz per bin
+        centre = int(round(waveform.carrier / resolution))
+        # The positive-frequency bins (the analytic signal) within +-rate/2 of the carrier's, FFT order.
+        bins, gain = _frame_gain(count, channel.rate, waveform.carrier, waveform.band, kept)
+        times = channel.times[0] + np.arange(kept) / rate
+        # Shifting by the carrier's bin mixes with its frequency from the frame's first sample; the
+        # remaining factor makes it exp(-j 2 pi f_c t) in absolute time, as the fast path's is.
+        correction = np.exp(-2j * np.pi * (centre * resolution * channel.times[0] + (waveform.carrier - centre * resolution) * times))
+        filtered = []
+        for x in (channel.mobile, channel.fixed):
+            spectrum = np.zeros(kept, dtype=complex)
+            spectrum[(bins - centre) % kept] = 2 * np.fft.rfft(x)[bins] * gain
+            filtered.append(np.fft.ifft(spectrum) * (kept / count) * correction)
+    keep = slice(int(round(guard * rate)), len(times) - int(round(guard * rate)))
+    return Channel(times[keep], filtered[0][keep], filtered[1][keep], rate, waveform.carrier)
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    range_difference: float  # m, c * TDOA (a tone's modulo one wavelength)
+    range_rate_difference: float  # m/s, c * d(TDOA)/dt = (c / f0) * FDOA
+    coherence: float  # mean normalized cross-correlation magnitude at the chosen lags, in [0, 1]
+
+
+def coarse_lag(envelope: Channel, max_lag: int) -> int:
+    """Lag (samples) of the peak of |R(k)|, R(k) = sum_t m(t) conj(f(t - k)), over the whole frame and
+    |k| <= max_lag: where the mobile channel best matches the fixed one. Needs a wideband waveform (a
+    sweep or hop whose repetition is longer than twice ``max_lag``)."""
+    count = len(envelope.times)
+    max_lag = min(max_lag, (count - 1) // 3)
+    inner = envelope.mobile[max_lag: count - max_lag]
+    full = signal.correlate(envelope.fixed, inner, mode="valid", method="fft")  # n -> conj(R(max_lag - n))
+    return int(max_lag - np.argmax(np.abs(full)))
+
+
+def _window_delay(envelope: Channel, start: int, stop: int, lag: int, tone: bool) -> tuple[float, float]:
+    """Delay (s) of the mobile channel behind the fixed one over samples [start, stop), near ``lag``
+    samples, and the normalized correlation there.
+
+    The analytic signals' correlation at the lag has phase 2 pi f_mean (lag - delay), with f_mean the
+    received mean frequency: the carrier for a tone (Doppler moves it by 1e-3 at most), else measured
+    from the aligned fixed samples' phase increments (in band-limited noise that estimate leans toward
+    the band's centre, which is why a tone does without it).
+    """
+    start, stop = max(start, lag), min(stop, len(envelope.fixed) + lag)  # keep t - lag inside the frame
+    mobile, aligned, rate = envelope.mobile[start:stop], envelope.fixed[start - lag: stop - lag], envelope.rate
+    correlation = np.vdot(aligned, mobile)
+    energy = np.sqrt(np.vdot(mobile, mobile).real * np.vdot(aligned, aligned).real)
+    mean_frequency = envelope.carrier
+    if not tone:
+        mean_frequency += np.angle(np.vdot(aligned[:-1], aligned[1:])) * rate / (2 * np.pi)
+    analytic_phase = np.angle(correlation * np.exp(2j * np.pi * envelope.carrier * lag / rate))  # wrapped to (-pi, pi]
+    return lag / rate - analytic_phase / (2 * np.pi * mean_frequency), float(np.abs(correlation) / energy)
+
+
+def estimate(envelope: Channel, waveform: Waveform, sound_speed: float, max_delay: float, windows: int = 10) -> FrameEstimate:
+    """[RD, RRD] of one frame from the two channels' complex envelopes (see the module docstring).
+
+    ``max_delay`` (s) bounds the coarse lag search (the baseline over c, plus margin).
+    """
+    tone = waveform.kind == "tone"
+    lag = 0 if tone else coarse_lag(envelope, int(np.ceil(max_delay * envelope.rate)))
+    edges = np.linspace(0, len(envelope.times), windows + 1).astype(int)
+    delays, coherences, centres = [], [], []
+    for start, stop in zip(edges[:-1], edges[1:]):
+        delay, coherence = _window_delay(envelope, start, stop, lag, tone)
+        delays.append(delay)
+        coherences.append(coherence)
+        centres.append(envelope.times[start:stop].mean())
+    delays = np.array(delays)
+    if tone:  # each window's delay is known modulo one period: keep the track continuous across windows
+        period = 1.0 / waveform.frequency
+        delays = np.unwrap(delays * 2 * np.pi / period) * period / (2 * np.pi)
+    centres = np.array(centres)
+    slope = np.polyfit(centres - centres.mean(), delays, 1)[0]
+    return FrameEstimate(float(sound_speed * delays.mean()), float(sound_speed * slope), float(np.mean(coherences)))
+
+
+def tone_measurement_sd(snr_mobile: float, snr_fixed: float, wavelength: float, bandwidth: float, duration: float) -> tuple[float, float]:
+    """Cramer-Rao sd of a tone frame's RD (m) and RRD (m/s) from the two channels' in-band SNRs (linear).
+
+    A channel's phase over a frame of T seconds in a band of B Hz has Fisher information 2 SNR B T
+    (rad^-2), its phase rate 2 SNR B T^3 / 12; RD and RRD are lambda / (2 pi) times the difference of
+    the two channels' phase and phase rate.
+    """
+    inverse_snr = 1.0 / snr_mobile + 1.0 / snr_fixed
+    scale = wavelength / (2 * np.pi)
+    return scale * np.sqrt(inverse_snr / (2 * bandwidth * duration)), scale * np.sqrt(6 * inverse_snr / (bandwidth * duration**3))
+
+
+@dataclass
+class FrontEnd:
+    """One hydrophone pair's front end: synthesizes a frame and estimates [RD, RRD] and the SNRs from it.
+
+    ``path`` is ``fast`` (complex baseband at ``envelope_rate``) or ``hardware`` (real at ``sample_rate``).
+    The ambient noise level is taken as known (a receiver calibrates it); each channel's SNR is measured
+    as its band power over that noise, so nothing from the true geometry leaks into it.
+    """
+
+    waveform_kind: str = "tone"
+    frequency: float = 1000.0  # Hz
+    path: str = "fast"
+    frame: float = 0.2  # s
+    guard: float = 0.02  # s synthesized at each end and dropped after filtering
+    sample_rate: float = 200_000.0  # Hz, hardware path
+    envelope_rate: float = 10_000.0  # Hz, fast path and the envelopes both paths estimate on
+    windows: int = 10
+    sound_speed: float = 1500.0  # m/s
+    source_level_db: float = 140.0  # dB re 1 uPa at 1 m (RMS)
+    noise_level_db: float = 80.0  # dB re 1 uPa^2 in the band
+    reflections: bool = False
+    water_depth: float = 60.0  # m
+    surface_reflection: float = -0.9
+    bed_reflection: float = 0.3
+    max_delay: float = 0.03  # s, coarse lag search (baseline / c with margin)
+    waveform: Waveform | None = None
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """A new episode: a fresh random phase (and hop sequence)."""
+        self.waveform = Waveform.random(self.waveform_kind, rng, frequency=self.frequency)
+
+    def measure(self, rng: np.random.Generator, time: float, source, source_velocity, mobile, mobile_velocity, fixed) -> tuple[FrameEstimate, np.ndarray]:
+        """The frame centred on ``time`` (s): its estimate and the two channels' measured SNRs (linear)."""
+        if self.waveform is None:
+            self.reset(rng)
+        paths = path_sources(source, source_velocity, self.reflections, self.water_depth, self.surface_reflection, self.bed_reflection)
+        baseband = self.path == "fast"
+        rate = self.envelope_rate if baseband else self.sample_rate
+        channel = synthesize(self.waveform, time, self.frame + 2 * self.guard, rate, baseband, paths, mobile, mobile_velocity,
+                             fixed, self.sound_speed, self.source_level_db, self.noise_level_db, rng)
+        envelope = envelopes(channel, self.waveform, self.envelope_rate, self.guard)
+        return estimate(envelope, self.waveform, self.sound_speed, self.max_delay, self.windows), self.snr(envelope)
+
+    def snr(self, envelope: Channel) -> np.ndarray:
+        """Each channel's in-band SNR (linear): band power above the known noise floor, over the noise level.
+
+        An envelope's power is twice the real signal's; the filtered noise keeps the share of the band's
+        power that the filter's gain passes (its noise bandwidth over the band).
+        """
+        band = self.waveform.band
+        noise = 10 ** (self.noise_level_db / 10)
+        filtered_noise = noise * noise_bandwidth(band) / (band[1] - band[0])
+        power = np.array([0.5 * np.mean(np.abs(x) ** 2) for x in (envelope.mobile, envelope.fixed)])
+        return np.maximum(power - filtered_noise, 1e-3 * noise) / noise

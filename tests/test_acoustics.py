@@ -1,0 +1,217 @@
+"""The acoustic front end against the geometry: waveforms, synthesis, the SNR model, [RD, RRD] from two channels."""
+
+import numpy as np
+import pytest
+
+from aasl_gym import acoustics, geometry
+
+FIXED = np.array([0.0, 0.0, -0.96])
+C = 1500.0
+MAX_DELAY = 45.0 / C
+
+
+def scene(rng):
+    """A random source and robot state near the pod (positions m, velocities m/s)."""
+    source = np.array([*rng.uniform(-20, 20, 2), rng.uniform(-30, -3)])
+    mobile = np.array([*rng.uniform(-20, 20, 2), rng.uniform(-15, -2)])
+    return source, rng.normal(0, 0.7, 3), mobile, rng.normal(0, 0.8, 3)
+
+
+def measure(waveform, source, source_velocity, mobile, mobile_velocity, baseband=True, noise_level_db=None, rng=None, guard=0.02):
+    """One 0.2 s frame (plus ``guard`` s each side, dropped after filtering) through the front end."""
+    rate = 10_000.0 if baseband else 200_000.0
+    paths = acoustics.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
+    channel = acoustics.synthesize(waveform, 3.0, 0.2 + 2 * guard, rate, baseband, paths, mobile, mobile_velocity, FIXED, C, 140.0, noise_level_db, rng)
+    return acoustics.estimate(acoustics.envelopes(channel, waveform, 10_000.0, guard), waveform, C, MAX_DELAY)
+
+
+@pytest.mark.parametrize("kind", ["tone", "sweep", "hop"])
+def test_waveform_phase_is_continuous_and_its_rate_is_the_frequency(kind, rng):
+    waveform = acoustics.Waveform.random(kind, rng)
+    t = np.linspace(-1.0, 2.0, 300_001)  # spans several sweeps / hops, and negative emission times
+    phase = waveform.phase_at(t)
+    rate = np.diff(phase) / np.diff(t) / (2 * np.pi)
+    midpoint = 0.5 * (t[1:] + t[:-1])
+    # Continuous: no jump beyond one step's worth of the highest frequency.
+    assert np.max(np.abs(np.diff(phase))) < 2 * np.pi * 1600 * (t[1] - t[0])
+    away_from_switches = np.abs(np.diff(waveform.frequency_at(t))) == 0
+    np.testing.assert_allclose(rate[away_from_switches], waveform.frequency_at(midpoint)[away_from_switches], atol=1e-3)
+
+
+@pytest.mark.parametrize("kind", ["tone", "sweep", "hop"])
+def test_noise_free_front_end_matches_the_geometry(kind, rng):
+    """Fast path, no noise, no reflections, source and robot moving: [RD, RRD] against the geometry at
+    the frame's centre.
+
+    Tone: RD (modulo one wavelength) within 1 mm, RRD within 2 mm/s - its phase difference *is* the
+    range difference. Sweep and hop: their delay is where two Doppler-scaled copies line up, which
+    differs from RD / c by RD * rdot_f / c (about 1e-3 of RD here), so RD within 2e-3 |RD| + 2 mm and
+    RRD within 2 cm/s (a window that straddles a hop loses some phase)."""
+    for _ in range(5):
+        source, source_velocity, mobile, mobile_velocity = scene(rng)
+        waveform = acoustics.Waveform.random(kind, rng)
+        result = measure(waveform, source, source_velocity, mobile, mobile_velocity)
+        rd = geometry.range_difference(source, mobile, FIXED)
+        rrd = geometry.range_rate_difference(source, source_velocity, mobile, mobile_velocity, FIXED)
+        if kind == "tone":
+            assert abs(geometry.wrap_to_period(result.range_difference - rd, C / waveform.frequency)) < 1e-3
+            assert result.range_rate_difference == pytest.approx(rrd, abs=2e-3)
+        else:
+            assert result.range_difference == pytest.approx(rd, abs=2e-3 * abs(rd) + 2e-3)
+            assert result.range_rate_difference == pytest.approx(rrd, abs=2e-2)
+        assert result.coherence > 0.99
+
+
+def test_fdoa_sign_follows_the_spec(rng):
+    """A robot running away from the source hears a lower tone: FDOA = f_fixed - f_mobile = (f0/c) RRD > 0.
+
+    The two received frequencies are read off the synthesized channels themselves (mean phase
+    increment), independently of the estimator, and the estimator's RRD has the same sign and size."""
+    source, source_velocity = np.array([5.0, 0.0, -10.0]), np.zeros(3)
+    mobile = np.array([20.0, 0.0, -10.0])
+    mobile_velocity = np.array([1.5, 0.0, 0.0])  # straight away from the source
+    waveform = acoustics.Waveform.random("tone", rng)
+    paths = acoustics.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
+    channel = acoustics.synthesize(waveform, 3.0, 0.2, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
+
+    def frequency(envelope):
+        return waveform.frequency + np.angle(np.vdot(envelope[:-1], envelope[1:])) * channel.rate / (2 * np.pi)
+
+    fdoa = frequency(channel.fixed) - frequency(channel.mobile)
+    rrd = geometry.range_rate_difference(source, source_velocity, mobile, mobile_velocity, FIXED)
+    assert rrd > 0
+    assert fdoa == pytest.approx(geometry.fdoa_from_rrd(rrd, waveform.frequency, C), rel=1e-3)
+    assert measure(waveform, source, source_velocity, mobile, mobile_velocity).range_rate_difference == pytest.approx(rrd, abs=2e-3)
+
+
+@pytest.mark.parametrize("kind,rd_tolerance,rrd_tolerance", [("tone", 2e-3, 5e-3), ("sweep", 2e-2, 2e-2)])
+def test_hardware_rate_and_baseband_paths_agree(kind, rd_tolerance, rrd_tolerance, rng):
+    """The 200 kHz real path (band-pass, Hilbert, mix down) and the baseband path give one answer, noise
+    free: a tone within 2 mm in RD and 5 mm/s in RRD, a sweep within 2 cm and 2 cm/s."""
+    for _ in range(3):
+        source, source_velocity, mobile, mobile_velocity = scene(rng)
+        waveform = acoustics.Waveform.random(kind, rng)
+        fast = measure(waveform, source, source_velocity, mobile, mobile_velocity, baseband=True)
+        hardware = measure(waveform, source, source_velocity, mobile, mobile_velocity, baseband=False)
+        assert hardware.range_difference == pytest.approx(fast.range_difference, abs=rd_tolerance)
+        assert hardware.range_rate_difference == pytest.approx(fast.range_rate_difference, abs=rrd_tolerance)
+
+
+def test_noise_power_in_the_band_is_the_noise_level(rng):
+    """White noise synthesized for a noise level of N dB has N dB of power inside the receiver band."""
+    waveform = acoustics.Waveform.random("tone", rng)
+    level = 80.0
+    for baseband, rate in ((False, 200_000.0), (True, 10_000.0)):
+        silent = acoustics.synthesize(waveform, 0.0, 2.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng)
+        spectrum = np.abs(np.fft.fft(silent.mobile)) ** 2 / len(silent.times) ** 2
+        frequencies = np.fft.fftfreq(len(silent.times), 1 / rate) + (waveform.carrier if baseband else 0.0)
+        low, high = waveform.band
+        magnitude = frequencies if baseband else np.abs(frequencies)  # a real signal's band shows on both sides
+        in_band = spectrum[(magnitude >= low) & (magnitude <= high)].sum()
+        power = in_band / 2 if baseband else in_band  # an envelope carries twice the real signal's power
+        assert 10 * np.log10(power) == pytest.approx(level, abs=0.3)
+
+
+def test_range_difference_noise_follows_the_cramer_rao_bound(rng):
+    """A tone's RD spread against the Cramer-Rao bound of a phase difference:
+    var(RD) >= (lambda / 2 pi)^2 (1/SNR_m + 1/SNR_f) / (2 B T), B the receiver band, T the frame.
+
+    Above the estimator's threshold (in-band SNR 8 and 18 dB here) the spread sits within 0.8-1.3 x
+    the bound and falls 10 dB per 10 dB of SNR (slope within 20 %)."""
+    source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
+    waveform = acoustics.Waveform.random("tone", rng)
+    wavelength, band, frame = C / waveform.frequency, 200.0, 0.2
+    rd = geometry.range_difference(source, mobile, FIXED)
+    spreads, bounds = [], []
+    for noise_level in (110.0, 100.0):
+        errors = [
+            geometry.wrap_to_period(measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng).range_difference - rd, wavelength)
+            for _ in range(200)
+        ]
+        snr = [10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10) for receiver in (mobile, FIXED)]
+        spreads.append(np.std(errors))
+        bounds.append(wavelength / (2 * np.pi) * np.sqrt((1 / snr[0] + 1 / snr[1]) / (2 * band * frame)))
+    for spread, bound in zip(spreads, bounds):
+        assert 0.8 < spread / bound < 1.3
+    slope = 20 * np.log10(spreads[0] / spreads[1]) / 10.0  # dB of spread per dB of SNR
+    assert slope == pytest.approx(1.0, rel=0.2)
+
+
+def test_with_reflections_the_tone_front_end_measures_the_phasor_model(rng):
+    """Surface and bed paths on (D = 60 m, a_surf = -0.9, a_bed = 0.3), no noise: the front end's [RD, RRD]
+    equals the exact phasor model's apparent RD (modulo one wavelength) over the frame - its mean and its
+    least-squares slope, the model evaluated along the frame's straight-line motion, since near an
+    interference fringe the apparent RD curves within 0.2 s - within 1 mm and 5 mm/s, while the
+    direct-path geometry is often decimetres away."""
+    largest_multipath_effect = 0.0
+    for _ in range(6):
+        source, source_velocity, mobile, mobile_velocity = scene(rng)
+        waveform = acoustics.Waveform.random("tone", rng)
+        paths = acoustics.path_sources(source, source_velocity, True, 60.0, -0.9, 0.3)
+        channel = acoustics.synthesize(waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
+        result = acoustics.estimate(acoustics.envelopes(channel, waveform, 10_000.0, 0.02), waveform, C, MAX_DELAY)
+        wavenumber, wavelength = 2 * np.pi * waveform.frequency / C, C / waveform.frequency
+        offsets = np.linspace(-0.1, 0.1, 201)[:, None]
+        model_rd, _ = geometry.phasor_multipath(source + source_velocity * offsets, source_velocity, mobile + mobile_velocity * offsets,
+                                                mobile_velocity, FIXED, 60.0, -0.9, 0.3, wavenumber)
+        slope, mean = np.polyfit(offsets[:, 0], model_rd, 1)
+        assert abs(geometry.wrap_to_period(result.range_difference - mean, wavelength)) < 1e-3
+        assert result.range_rate_difference == pytest.approx(slope, abs=5e-3)
+        direct = geometry.range_difference(source, mobile, FIXED)
+        largest_multipath_effect = max(largest_multipath_effect, abs(geometry.wrap_to_period(mean - direct, wavelength)))
+    assert largest_multipath_effect > 0.05  # a front end that ignored the images would fail the checks above
+
+
+def test_a_whole_episode_unwraps_without_a_slip(rng):
+    """120 s of frames (5 Hz) while the robot circles the pod at 1 m/s and the source cruises: the
+    front end's wrapped RD, unwrapped against the previous value, stays the true RD plus one fixed
+    whole number of wavelengths (default noise level, SNR about 30 dB); RD moves by many wavelengths."""
+    from aasl_gym.measurements import Unwrapper
+
+    waveform = acoustics.Waveform.random("tone", rng)
+    wavelength = C / waveform.frequency
+    unwrapper = Unwrapper(wavelength)
+    source, source_velocity = np.array([10.0, -5.0, -12.0]), np.array([0.4, 0.3, 0.0])
+    offsets, truths = [], []
+    for time in np.arange(0.0, 120.0, 0.2):
+        angle = time / 15.0
+        mobile = np.array([15 * np.cos(angle), 15 * np.sin(angle), -7 - 5 * np.sin(2 * np.pi * time / 30)])
+        mobile_velocity = np.array([-np.sin(angle), np.cos(angle), -5 * 2 * np.pi / 30 * np.cos(2 * np.pi * time / 30)])
+        position = source + source_velocity * time
+        result = measure(waveform, position, source_velocity, mobile, mobile_velocity, noise_level_db=80.0, rng=rng)
+        truth = geometry.range_difference(position, mobile, FIXED)
+        offsets.append((unwrapper(result.range_difference) - truth) / wavelength)
+        truths.append(truth)
+    offsets = np.array(offsets)
+    assert np.ptp(truths) > 10 * wavelength
+    assert np.all(np.abs(offsets - np.round(offsets)) < 0.05)  # within 7.5 cm of a whole period
+    assert np.all(np.round(offsets) == np.round(offsets[0]))  # and always the same one: no slip
+
+
+def test_tone_measurement_sd_matches_the_spread_of_the_estimates(rng):
+    """The RD and RRD sd the filter is told (the Cramer-Rao values from the frame's SNRs) against the
+    spread of 300 noisy frames at an in-band SNR near 15 dB: within 0.8-1.3x each."""
+    source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
+    waveform = acoustics.Waveform.random("tone", rng)
+    wavelength, noise_level = C / waveform.frequency, 104.0
+    rd = geometry.range_difference(source, mobile, FIXED)
+    results = [measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng) for _ in range(300)]
+    rd_errors = [geometry.wrap_to_period(r.range_difference - rd, wavelength) for r in results]
+    rrd_errors = [r.range_rate_difference for r in results]
+    snr = [10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10) for receiver in (mobile, FIXED)]
+    sd_rd, sd_rrd = acoustics.tone_measurement_sd(snr[0], snr[1], wavelength, 200.0, 0.2)
+    assert 0.8 < np.std(rd_errors) / sd_rd < 1.3
+    assert 0.8 < np.std(rrd_errors) / sd_rrd < 1.3
+
+
+@pytest.mark.parametrize("path", ["fast", "hardware"])
+def test_front_end_measures_the_snr_model(path, rng):
+    """Each channel's SNR measured from its band power (the noise level known) is the SNR model's,
+    source level - 20 log10(range) - noise level, within 1 dB from 15 to 40 dB."""
+    source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
+    front_end = acoustics.FrontEnd(path=path)
+    for noise_level in (78.0, 100.0):
+        front_end.noise_level_db = noise_level
+        snrs = np.array([front_end.measure(rng, 1.0, source, np.zeros(3), mobile, np.zeros(3), FIXED)[1] for _ in range(10)])
+        model = [140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level for receiver in (mobile, FIXED)]
+        np.testing.assert_allclose(10 * np.log10(snrs.mean(axis=0)), model, atol=1.0)
