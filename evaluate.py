@@ -190,10 +190,15 @@ def _fmt(value, digits: int = 1) -> str:
 
 
 def write_report(path: Path, command: str, config: EnvConfig, summary: list[dict], comparisons: dict[str, list[dict]], plots: list[str]) -> None:
+    if config.measurement.mode == "geometric":
+        measurements = f"Measurement noise: sigma_R = {config.measurement.range_difference_sd} m, sigma_V = {config.measurement.range_rate_difference_sd} m/s; "
+    else:
+        measurements = (f"Measurements: the acoustic front end ({config.signal.path} path, {config.signal.frame_duration} s frames, source level "
+                        f"{config.source.source_level_db} dB, noise level {config.world.noise_level_db} dB; R from each frame's SNR); ")
     lines = [
         "# AASL-Gym evaluation", "",
         f"Command: `{command}`", "",
-        f"Measurement noise: sigma_R = {config.measurement.range_difference_sd} m, sigma_V = {config.measurement.range_rate_difference_sd} m/s; "
+        measurements +
         f"navigation sigma_rov = {config.receiver.nav_position_sd} m; reflections {'on' if config.world.reflections else 'off'}; "
         f"filter multipath model `{config.filter.multipath}`; episode {config.episode.duration:.0f} s at {config.measurement.rate:.0f} Hz.", "",
         "Convergence time: first time the error falls below 1 m and stays below to the end; its mean and 95 % CI are over "
@@ -313,8 +318,6 @@ def main(argv: list[str] | None = None) -> int:
         from aasl_gym.env import resolve_config
 
         resolve_config(jobs[0].config, measurement=jobs[0].measurement, filter_model=jobs[0].filter_model)
-        if jobs[0].measurement == "signal":
-            raise ConfigError("--measurement signal: the acoustic front end is not implemented yet; use geometric")
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -338,7 +341,8 @@ def main(argv: list[str] | None = None) -> int:
     effective = to_dict(config)
     effective.update({"world": jobs[0].config["world"], "filter": jobs[0].config["filter"]})
     atomic_write_json(args.out / "results.json", {"command": command, "config": effective, "episodes": rows, "summary": summary, "comparisons": comparisons})
-    write_report(args.out / "report.md", command, config.replace(world=jobs[0].config["world"], filter=jobs[0].config["filter"]), summary, comparisons, plots)
+    report_config = config.replace(world=jobs[0].config["world"], filter=jobs[0].config["filter"], measurement={"mode": jobs[0].measurement})
+    write_report(args.out / "report.md", command, report_config, summary, comparisons, plots)
     print(f"\n{'policy':<12} {'initializer':<9} {'motion':<7} {'n':>4} {'succ@1m':>8} {'conv (s)':>9} {'RMSE med':>9}")
     for s in summary:
         print(f"{s['policy']:<12} {s['initializer']:<9} {s['motion']:<7} {s['n']:>4} {s['success_rate']['1.0']:>8.0%} "

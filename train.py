@@ -60,9 +60,6 @@ def main(argv=None) -> int:
     if not isinstance(hyper, dict) or "schedule" not in hyper or args.algo not in hyper:
         print(f"error: --hyperparameters: {args.hyperparameters} needs a 'schedule' section and a '{args.algo}' section", file=sys.stderr)
         return 2
-    if config.measurement.mode == "signal":
-        print("error: --config: measurement.mode 'signal' is not implemented yet; use geometric", file=sys.stderr)
-        return 2
     schedule = hyper["schedule"]
     timesteps = args.timesteps or int(schedule["timesteps"])
     n_envs = args.n_envs or int(schedule["n_envs"])
