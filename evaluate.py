@@ -338,11 +338,10 @@ def main(argv: list[str] | None = None) -> int:
         comparisons["policy"] = paired_comparisons(rows, config.episode.duration, "policy", baseline)
     args.out.mkdir(parents=True, exist_ok=True)
     plots = [] if args.no_plots else write_plots(args.out, rows, summary)
-    effective = to_dict(config)
-    effective.update({"world": jobs[0].config["world"], "filter": jobs[0].config["filter"]})
-    atomic_write_json(args.out / "results.json", {"command": command, "config": effective, "episodes": rows, "summary": summary, "comparisons": comparisons})
-    report_config = config.replace(world=jobs[0].config["world"], filter=jobs[0].config["filter"], measurement={"mode": jobs[0].measurement})
-    write_report(args.out / "report.md", command, report_config, summary, comparisons, plots)
+    # The config the episodes ran with: the file's, with the command line's world, filter and measurement mode.
+    effective = config.replace(world=jobs[0].config["world"], filter=jobs[0].config["filter"], measurement={"mode": jobs[0].measurement})
+    atomic_write_json(args.out / "results.json", {"command": command, "config": to_dict(effective), "episodes": rows, "summary": summary, "comparisons": comparisons})
+    write_report(args.out / "report.md", command, effective, summary, comparisons, plots)
     print(f"\n{'policy':<12} {'initializer':<9} {'motion':<7} {'n':>4} {'succ@1m':>8} {'conv (s)':>9} {'RMSE med':>9}")
     for s in summary:
         print(f"{s['policy']:<12} {s['initializer']:<9} {s['motion']:<7} {s['n']:>4} {s['success_rate']['1.0']:>8.0%} "

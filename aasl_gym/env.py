@@ -199,7 +199,9 @@ class AASLEnv(gym.Env):
         measurement_sd = np.array([cfg.measurement.range_difference_sd, cfg.measurement.range_rate_difference_sd])
         self.acoustic_covariance = np.diag(measurement_sd**2)
         navigation_variance = np.array([cfg.receiver.nav_position_sd**2, cfg.receiver.velocity_sd**2])
-        self.filter_covariance = self.acoustic_covariance + (np.diag(navigation_variance) if cfg.filter.compensate_navigation else 0.0)
+        # The navigation term of R_eff (zero without compensation); geometric mode's R is fixed, signal mode's per frame.
+        self.navigation_covariance = np.diag(navigation_variance) if cfg.filter.compensate_navigation else np.zeros((2, 2))
+        self.filter_covariance = self.acoustic_covariance + self.navigation_covariance
         self.propagation = Propagation.from_config(cfg.world, cfg.source.frequency)
         period = cfg.wavelength if cfg.source.waveform == "tone" else None
         self.signal_mode = cfg.measurement.mode == "signal"
@@ -207,7 +209,6 @@ class AASLEnv(gym.Env):
             self.sensor = SignalSensor(cfg, period)
         else:
             self.sensor = GeometricSensor(measurement_sd, self.propagation, cfg.world.reflections, period)
-        self.navigation_covariance = np.diag(navigation_variance) if cfg.filter.compensate_navigation else np.zeros((2, 2))
         self.tracker = SourceTracker(cfg, self.source_region, self.filter_covariance)
         self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
@@ -280,7 +281,7 @@ class AASLEnv(gym.Env):
         self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, dt)
 
         # 3. estimate
-        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, rng, noise if self.signal_mode else None)
+        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, rng, noise)
         estimate = self.tracker.position
         estimate_velocity = self.tracker.velocity
         linearization = np.concatenate([estimate, estimate_velocity]) if out.initialized else self.prior_mean[:6]

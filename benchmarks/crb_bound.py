@@ -87,6 +87,17 @@ def episode_bound(env: AASLEnv, seed: int) -> np.ndarray:
     return np.sqrt(np.trace(position_covariance, axis1=1, axis2=2))
 
 
+def print_table(header: list[str], rows, out: str | None) -> None:
+    """Print a markdown table row by row as ``rows`` yields them (long jobs show progress), then write it to ``out``."""
+    lines = list(header)
+    print(lines[0], flush=True)
+    for line in rows:
+        print(line, flush=True)
+        lines.append(line)
+    if out:
+        atomic_write_text(out, "\n".join(lines) + "\n")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=["static", "cv", "ca", "ctrv"])
@@ -97,24 +108,22 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default=None, help="markdown file for the table")
     args = parser.parse_args(argv)
     base = load_config(args.config)
-    lines = [f"| motion | episodes | bound < {args.target} m to the end | median first time (s) |", "|---|---|---|---|"]
-    print(lines[0], flush=True)
-    for motion in args.motions:
-        env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol="helix")
-        times = []
-        for seed in range(args.seed, args.seed + args.episodes):
-            bound = episode_bound(env, seed)
-            above = np.nonzero(bound >= args.target)[0]
-            last_above = above[-1] if len(above) else -1
-            times.append((last_above + 2) * env.dt if last_above + 1 < len(bound) else np.inf)
-        times = np.array(times)
-        reached = np.isfinite(times)
-        line = f"| {motion} | {len(times)} | {reached.mean():.0%} | {np.median(times[reached]) if reached.any() else float('nan'):.1f} |"
-        print(line, flush=True)
-        lines.append(line)
-    if args.out:
-        atomic_write_text(args.out, "\n".join(lines) + "\n")
+    header = [f"| motion | episodes | bound < {args.target} m to the end | median first time (s) |", "|---|---|---|---|"]
 
+    def rows():
+        for motion in args.motions:
+            env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol="helix")
+            times = []
+            for seed in range(args.seed, args.seed + args.episodes):
+                bound = episode_bound(env, seed)
+                above = np.nonzero(bound >= args.target)[0]
+                last_above = above[-1] if len(above) else -1
+                times.append((last_above + 2) * env.dt if last_above + 1 < len(bound) else np.inf)
+            times = np.array(times)
+            reached = np.isfinite(times)
+            yield f"| {motion} | {len(times)} | {reached.mean():.0%} | {np.median(times[reached]) if reached.any() else float('nan'):.1f} |"
+
+    print_table(header, rows(), args.out)
 
 if __name__ == "__main__":
     main()
