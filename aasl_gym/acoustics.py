@@ -145,20 +145,30 @@ def path_sources(source: np.ndarray, source_velocity: np.ndarray, reflections: b
     return paths
 
 
-def received_pressure(waveform: Waveform, times: np.ndarray, centre: float, paths, receiver: np.ndarray,
-                      receiver_velocity: np.ndarray, sound_speed: float, amplitude: float, analytic: bool) -> np.ndarray:
-    """Pressure sum_k amplitude g_k / r_k(t) exp(j Phi(t - r_k(t)/c)) at the receiver: complex (N,) with
-    ``analytic``, else its real part (cosines).
+def received_pressure(waveform: Waveform, times: np.ndarray, centre: float, paths, receivers: np.ndarray,
+                      receiver_velocities: np.ndarray, sound_speed: float, amplitude: float, analytic: bool,
+                      carrier: float = 0.0) -> np.ndarray:
+    """Pressure sum_k amplitude g_k / r_k(t) exp(j Phi(t - r_k(t)/c)) at each receiver, shape (R, N)
+    for receivers (R, 3): complex with ``analytic`` (times exp(-j 2 pi carrier t), the complex envelope,
+    for a nonzero ``carrier`` in Hz), else its real part (cosines).
 
     Positions move linearly through their values at ``centre``; ``amplitude`` is the peak pressure at 1 m.
     """
     offset = times - centre
-    total = np.zeros(len(times), dtype=complex if analytic else float)
+    receivers, receiver_velocities = np.atleast_2d(receivers), np.atleast_2d(receiver_velocities)
+    total = np.zeros((len(receivers), len(times)), dtype=complex if analytic else float)
+    mixer_phase = 2 * np.pi * carrier * times
     for position, velocity, gain in paths:
-        relative, relative_velocity = position - receiver, velocity - receiver_velocity
-        distance = np.sqrt(sum((relative[i] + relative_velocity[i] * offset) ** 2 for i in range(3)))
+        relative, relative_velocity = position - receivers, velocity - receiver_velocities  # (R, 3)
+        distance = np.sqrt(sum((relative[:, i, None] + relative_velocity[:, i, None] * offset) ** 2 for i in range(3)))
         phase = waveform.phase_at(times - distance / sound_speed)
-        total += gain * amplitude / distance * (np.exp(1j * phase) if analytic else np.cos(phase))
+        pressure = gain * amplitude / distance
+        if analytic:
+            phase -= mixer_phase
+            total.real += pressure * np.cos(phase)
+            total.imag += pressure * np.sin(phase)
+        else:
+            total += pressure * np.cos(phase)
     return total
 
 
@@ -185,21 +195,34 @@ def synthesize(waveform: Waveform, centre: float, duration: float, rate: float, 
     complex envelope about the waveform's carrier at ``rate`` Hz (the fast path). ``noise_level_db``
     None gives noise-free channels."""
     times = frame_times(centre, duration, rate)
-    amplitude = peak_amplitude(source_level_db)
-    zero = np.zeros(3)
-    channels = [
-        received_pressure(waveform, times, centre, paths, np.asarray(receiver, float), np.asarray(velocity, float), sound_speed, amplitude, baseband)
-        for receiver, velocity in ((mobile, mobile_velocity), (fixed, zero))
-    ]
-    if baseband:
-        mixer = np.exp(-2j * np.pi * waveform.carrier * times)
-        channels = [channel * mixer for channel in channels]
+    carrier = waveform.carrier if baseband else 0.0
+    receivers = np.array([mobile, fixed], dtype=float)
+    velocities = np.array([mobile_velocity, np.zeros(3)], dtype=float)
+    channels = received_pressure(waveform, times, centre, paths, receivers, velocities, sound_speed,
+                                 peak_amplitude(source_level_db), baseband, carrier)
     if noise_level_db is not None:
         sd = noise_sd(noise_level_db, waveform.band, rate, complex_samples=baseband)
-        for channel in channels:
-            noise = rng.normal(0.0, sd, (2, len(times)) if baseband else len(times))
-            channel += noise[0] + 1j * noise[1] if baseband else noise
-    return Channel(times, channels[0], channels[1], rate, waveform.carrier if baseband else 0.0)
+        if baseband:
+            # White noise's DFT bins are independent complex Gaussians: draw only the bins the band-pass
+            # lets through (power gain above 1e-12; the rest it would remove anyway).
+            bins = _noise_bins(len(times), rate, carrier, waveform.band)
+            draws = rng.normal(0.0, sd * np.sqrt(len(times)), (2, 2, len(bins)))  # (real / imaginary, channel, bin)
+            spectrum = np.zeros(channels.shape, dtype=complex)
+            spectrum[:, bins] = draws[0] + 1j * draws[1]
+            channels += np.fft.ifft(spectrum, axis=-1)
+        else:
+            channels += rng.normal(0.0, sd, channels.shape)
+    return Channel(times, channels[0], channels[1], rate, carrier)
+
+
+@functools.lru_cache(maxsize=16)
+def _noise_bins(count: int, rate: float, carrier: float, band: tuple[float, float]) -> np.ndarray:
+    """FFT bins of a ``count``-sample envelope at ``rate`` Hz about ``carrier`` where the band-pass's
+    power gain exceeds 1e-12 (read-only)."""
+    frequencies = np.fft.fftfreq(count, 1 / rate) + carrier
+    bins = np.flatnonzero((frequencies > 0) & (band_gain(frequencies, band) ** 2 > 1e-12))
+    bins.setflags(write=False)
+    return bins
 
 
 @functools.lru_cache(maxsize=16)
@@ -224,7 +247,9 @@ def _frame_gain(count: int, rate: float, carrier: float, band: tuple[float, floa
     FFT order about it. The arrays are read-only.
     """
     if analytic_bins is None:
-        bins, gain = np.empty(0, dtype=int), band_gain(np.fft.fftfreq(count, 1 / rate) + carrier, band)
+        # The band-pass of an analytic signal: its mirror band at negative frequencies holds only noise.
+        frequencies = np.fft.fftfreq(count, 1 / rate) + carrier
+        bins, gain = np.empty(0, dtype=int), band_gain(frequencies, band) * (frequencies > 0)
     else:
         resolution = rate / count
         centre = int(round(carrier / resolution))
@@ -238,10 +263,11 @@ def _frame_gain(count: int, rate: float, carrier: float, band: tuple[float, floa
 
 @functools.lru_cache(maxsize=16)
 def noise_bandwidth(band: tuple[float, float], order: int = 4) -> float:
-    """Hz, the integral of :func:`band_gain`: how much white noise the zero-phase band-pass lets through."""
+    """Hz, how much white noise the zero-phase band-pass lets through: the integral of the square of
+    :func:`band_gain` (the forward-backward filter's amplitude response is |H|^2, its power response |H|^4)."""
     width = band[1] - band[0]
     frequencies = np.linspace(max(band[0] - 2 * width, 0.0), band[1] + 2 * width, 4001)
-    return float(integrate.trapezoid(band_gain(frequencies, band, order), frequencies))
+    return float(integrate.trapezoid(band_gain(frequencies, band, order) ** 2, frequencies))
 
 
 def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard: float = 0.0) -> Channel:
@@ -255,9 +281,10 @@ def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard:
     Complex envelopes (the fast path) are filtered at their own rate.
     """
     count = len(channel.times)
+    channels = np.array([channel.mobile, channel.fixed])
     if channel.carrier:  # already an envelope about the carrier
         _, gain = _frame_gain(count, channel.rate, channel.carrier, waveform.band, None)
-        filtered = [np.fft.ifft(np.fft.fft(x) * gain) for x in (channel.mobile, channel.fixed)]
+        filtered = np.fft.ifft(np.fft.fft(channels, axis=-1) * gain, axis=-1)
         times, rate = channel.times, channel.rate
     else:
         kept = int(round(count * envelope_rate / channel.rate))  # bins of the decimated envelope
@@ -270,11 +297,10 @@ def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard:
         # Shifting by the carrier's bin mixes with its frequency from the frame's first sample; the
         # remaining factor makes it exp(-j 2 pi f_c t) in absolute time, as the fast path's is.
         correction = np.exp(-2j * np.pi * (centre * resolution * channel.times[0] + (waveform.carrier - centre * resolution) * times))
-        filtered = []
-        for x in (channel.mobile, channel.fixed):
-            spectrum = np.zeros(kept, dtype=complex)
-            spectrum[(bins - centre) % kept] = 2 * np.fft.rfft(x)[bins] * gain
-            filtered.append(np.fft.ifft(spectrum) * (kept / count) * correction)
+        spectrum = np.zeros((2, kept), dtype=complex)
+        for row, samples in enumerate(channels):  # one long real FFT per channel (faster here than one over both rows)
+            spectrum[row, (bins - centre) % kept] = 2 * np.fft.rfft(samples)[bins] * gain
+        filtered = np.fft.ifft(spectrum, axis=-1) * (kept / count) * correction
     keep = slice(int(round(guard * rate)), len(times) - int(round(guard * rate)))
     return Channel(times[keep], filtered[0][keep], filtered[1][keep], rate, waveform.carrier)
 
@@ -297,47 +323,88 @@ def coarse_lag(envelope: Channel, max_lag: int) -> int:
     return int(max_lag - np.argmax(np.abs(full)))
 
 
-def _window_delay(envelope: Channel, start: int, stop: int, lag: int, tone: bool) -> tuple[float, float]:
-    """Delay (s) of the mobile channel behind the fixed one over samples [start, stop), near ``lag``
-    samples, and the normalized correlation there.
+@functools.lru_cache(maxsize=16)
+def noise_lag_product(noise_level_db: float, band: tuple[float, float], carrier: float, rate: float) -> complex:
+    """E[conj(n_t) n_(t+1)] of band-passed noise in a complex envelope about ``carrier`` at ``rate`` Hz
+    (uPa^2): its autocorrelation at one sample, the integral of its spectrum 2 N / B |H(f)|^4 times
+    exp(j 2 pi (f - f_c) / rate), N the noise level in the band B (an envelope carries twice the power)."""
+    width = band[1] - band[0]
+    frequencies = np.linspace(max(band[0] - 2 * width, 0.0), band[1] + 2 * width, 4001)
+    density = 2 * 10 ** (noise_level_db / 10) / width * band_gain(frequencies, band) ** 2
+    return complex(integrate.trapezoid(density * np.exp(2j * np.pi * (frequencies - carrier) / rate), frequencies))
+
+
+def _window_delays(envelope: Channel, edges: np.ndarray, lag: int, tone: bool, noise_lag: complex = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per window [edges[i], edges[i+1]) of the mobile channel: its delay (s) behind the fixed one near
+    ``lag`` samples, the normalized correlation there, and the time (s) the delay belongs to (the mean
+    time of the mobile samples used: a large lag leaves fewer of them in the frame's first or last
+    window, or none, and an empty window is dropped).
 
     The analytic signals' correlation at the lag has phase 2 pi f_mean (lag - delay), with f_mean the
     received mean frequency: the carrier for a tone (Doppler moves it by 1e-3 at most), else measured
-    from the aligned fixed samples' phase increments (in band-limited noise that estimate leans toward
-    the band's centre, which is why a tone does without it).
+    from the aligned fixed samples' mean phase increment. Band-limited noise adds its own increments,
+    which lean toward the band's centre; ``noise_lag`` (:func:`noise_lag_product`) is their expected
+    value per sample, taken off the sum. A tone does without the estimate.
     """
-    start, stop = max(start, lag), min(stop, len(envelope.fixed) + lag)  # keep t - lag inside the frame
-    mobile, aligned, rate = envelope.mobile[start:stop], envelope.fixed[start - lag: stop - lag], envelope.rate
-    correlation = np.vdot(aligned, mobile)
-    energy = np.sqrt(np.vdot(mobile, mobile).real * np.vdot(aligned, aligned).real)
-    mean_frequency = envelope.carrier
+    count, rate = len(envelope.fixed), envelope.rate
+    low, high = max(0, lag), min(count, count + lag)  # mobile samples whose t - lag lies inside the frame
+    mobile, aligned = envelope.mobile[low:high], envelope.fixed[low - lag: high - lag]
+    bounds = np.clip(edges, low, high) - low
+    starts = bounds[:-1][bounds[1:] > bounds[:-1] + 1]  # windows of two samples or more
+    lengths = np.diff(np.append(starts, high - low))
+    correlation = np.add.reduceat(np.conj(aligned) * mobile, starts)
+    energy = np.sqrt(np.add.reduceat(np.abs(mobile) ** 2, starts) * np.add.reduceat(np.abs(aligned) ** 2, starts))
+    mean_frequency = np.full(len(starts), envelope.carrier)
     if not tone:
-        mean_frequency += np.angle(np.vdot(aligned[:-1], aligned[1:])) * rate / (2 * np.pi)
+        products = np.conj(aligned[:-1]) * aligned[1:]
+        products[starts[1:] - 1] = 0.0  # increments stay within their window
+        increments = np.add.reduceat(products, starts) - (lengths - 1) * noise_lag
+        mean_frequency += np.angle(increments) * rate / (2 * np.pi)
     analytic_phase = np.angle(correlation * np.exp(2j * np.pi * envelope.carrier * lag / rate))  # wrapped to (-pi, pi]
-    return lag / rate - analytic_phase / (2 * np.pi * mean_frequency), float(np.abs(correlation) / energy)
+    delays = lag / rate - analytic_phase / (2 * np.pi * mean_frequency)
+    centres = np.add.reduceat(envelope.times[low:high], starts) / lengths
+    return delays, np.abs(correlation) / energy, centres
 
 
-def estimate(envelope: Channel, waveform: Waveform, sound_speed: float, max_delay: float, windows: int = 10) -> FrameEstimate:
-    """[RD, RRD] of one frame from the two channels' complex envelopes (see the module docstring).
+@dataclass(frozen=True)
+class DelayTrack:
+    """Per-window delays of one frame: what the correlation stage hands to the TDOA / FDOA stage."""
 
-    ``max_delay`` (s) bounds the coarse lag search (the baseline over c, plus margin).
+    delays: np.ndarray  # s, mobile behind fixed (a tone's continuous across windows, modulo one period overall)
+    times: np.ndarray  # s, the time each delay belongs to
+    coherences: np.ndarray  # normalized correlation magnitude per window
+
+
+def delay_track(envelope: Channel, waveform: Waveform, max_delay: float, windows: int = 10,
+                noise_level_db: float | None = None) -> DelayTrack:
+    """The correlation stage: coarse lag (sweep, hop) and each window's sub-sample delay.
+
+    ``max_delay`` (s) bounds the coarse lag search (the baseline over c, plus margin). A known
+    ``noise_level_db`` (dB re 1 uPa^2 in the band) debiases a sweep's or hop's mean frequency.
     """
     tone = waveform.kind == "tone"
+    noise_lag = 0.0 if noise_level_db is None else noise_lag_product(noise_level_db, waveform.band, waveform.carrier, envelope.rate)
     lag = 0 if tone else coarse_lag(envelope, int(np.ceil(max_delay * envelope.rate)))
     edges = np.linspace(0, len(envelope.times), windows + 1).astype(int)
-    delays, coherences, centres = [], [], []
-    for start, stop in zip(edges[:-1], edges[1:]):
-        delay, coherence = _window_delay(envelope, start, stop, lag, tone)
-        delays.append(delay)
-        coherences.append(coherence)
-        centres.append(envelope.times[start:stop].mean())
-    delays = np.array(delays)
+    delays, coherences, times = _window_delays(envelope, edges, lag, tone, noise_lag)
     if tone:  # each window's delay is known modulo one period: keep the track continuous across windows
         period = 1.0 / waveform.frequency
         delays = np.unwrap(delays * 2 * np.pi / period) * period / (2 * np.pi)
-    centres = np.array(centres)
-    slope = np.polyfit(centres - centres.mean(), delays, 1)[0]
-    return FrameEstimate(float(sound_speed * delays.mean()), float(sound_speed * slope), float(np.mean(coherences)))
+    return DelayTrack(delays, times, coherences)
+
+
+def tdoa_fdoa(track: DelayTrack, sound_speed: float) -> FrameEstimate:
+    """The TDOA / FDOA stage: RD from the track's mean delay, RRD from its least-squares time slope."""
+    offsets = track.times - track.times.mean()
+    slope = np.dot(offsets, track.delays) / np.dot(offsets, offsets)
+    return FrameEstimate(float(sound_speed * track.delays.mean()), float(sound_speed * slope), float(np.mean(track.coherences)))
+
+
+def estimate(envelope: Channel, waveform: Waveform, sound_speed: float, max_delay: float, windows: int = 10,
+             noise_level_db: float | None = None) -> FrameEstimate:
+    """[RD, RRD] of one frame from the two channels' complex envelopes (see the module docstring and
+    :func:`delay_track`)."""
+    return tdoa_fdoa(delay_track(envelope, waveform, max_delay, windows, noise_level_db), sound_speed)
 
 
 def tone_measurement_sd(snr_mobile: float, snr_fixed: float, wavelength: float, bandwidth: float, duration: float) -> tuple[float, float]:
@@ -393,7 +460,8 @@ class FrontEnd:
         channel = synthesize(self.waveform, time, self.frame + 2 * self.guard, rate, baseband, paths, mobile, mobile_velocity,
                              fixed, self.sound_speed, self.source_level_db, self.noise_level_db, rng)
         envelope = envelopes(channel, self.waveform, self.envelope_rate, self.guard)
-        return estimate(envelope, self.waveform, self.sound_speed, self.max_delay, self.windows), self.snr(envelope)
+        result = estimate(envelope, self.waveform, self.sound_speed, self.max_delay, self.windows, self.noise_level_db)
+        return result, self.snr(envelope)
 
     def snr(self, envelope: Channel) -> np.ndarray:
         """Each channel's in-band SNR (linear): band power above the known noise floor, over the noise level.
@@ -404,5 +472,5 @@ class FrontEnd:
         band = self.waveform.band
         noise = 10 ** (self.noise_level_db / 10)
         filtered_noise = noise * noise_bandwidth(band) / (band[1] - band[0])
-        power = np.array([0.5 * np.mean(np.abs(x) ** 2) for x in (envelope.mobile, envelope.fixed)])
+        power = np.array([0.5 * np.vdot(x, x).real / len(x) for x in (envelope.mobile, envelope.fixed)])
         return np.maximum(power - filtered_noise, 1e-3 * noise) / noise

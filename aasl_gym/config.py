@@ -154,7 +154,7 @@ class ReceiverConfig:
 class MeasurementConfig:
     """How [RD, RRD] is produced each step."""
 
-    mode: str = "geometric"  # geometric (z = h(x) + noise) or signal (the acoustic front end, see signal)
+    mode: str = "signal"  # signal (the acoustic front end, see SignalConfig) or geometric (z = h(x) + noise)
     rate: float = 5.0  # Hz, one measurement per env step
     range_difference_sd: float = 0.05  # m, sigma_R (geometric mode; signal mode derives it from each frame's SNR)
     range_rate_difference_sd: float = 0.02  # m/s, sigma_V (geometric mode; likewise)

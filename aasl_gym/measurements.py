@@ -109,7 +109,10 @@ class SignalSensor:
     It also says how noisy that z is: ``covariance`` is the Cramer-Rao covariance of a tone frame at the
     two channels' *measured* SNRs (:func:`~aasl_gym.acoustics.tone_measurement_sd`), times
     ``signal.sd_inflation`` in sd, floored at ``signal.min_*_sd``; the env gives it to the filter as
-    this step's R (plus the navigation term). ``range_rate_bias`` (a clock-rate offset) is added to RRD.
+    this step's R (plus the navigation term). A sweep or hop gets the same formula at its carrier's
+    wavelength over its whole band: its delay also comes from the correlation phase, and its measured
+    spread is 1.0-1.3x that sd (``tests/test_acoustics.py``), within the inflation. The tone's spread is
+    0.8-1.3x its bound. ``range_rate_bias`` (a clock-rate offset) is added to RRD.
     """
 
     def __init__(self, config: EnvConfig, period: float | None):

@@ -22,7 +22,7 @@ def measure(waveform, source, source_velocity, mobile, mobile_velocity, baseband
     rate = 10_000.0 if baseband else 200_000.0
     paths = acoustics.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
     channel = acoustics.synthesize(waveform, 3.0, 0.2 + 2 * guard, rate, baseband, paths, mobile, mobile_velocity, FIXED, C, 140.0, noise_level_db, rng)
-    return acoustics.estimate(acoustics.envelopes(channel, waveform, 10_000.0, guard), waveform, C, MAX_DELAY)
+    return acoustics.estimate(acoustics.envelopes(channel, waveform, 10_000.0, guard), waveform, C, MAX_DELAY, noise_level_db=noise_level_db)
 
 
 @pytest.mark.parametrize("kind", ["tone", "sweep", "hop"])
@@ -45,8 +45,10 @@ def test_noise_free_front_end_matches_the_geometry(kind, rng):
 
     Tone: RD (modulo one wavelength) within 1 mm, RRD within 2 mm/s - its phase difference *is* the
     range difference. Sweep and hop: their delay is where two Doppler-scaled copies line up, which
-    differs from RD / c by RD * rdot_f / c (about 1e-3 of RD here), so RD within 2e-3 |RD| + 2 mm and
-    RRD within 2 cm/s (a window that straddles a hop loses some phase)."""
+    differs from RD / c by RD * rdot_f / c (about 1e-3 of RD here), so RD within 2e-3 |RD| + 2 mm; RRD
+    within 1.5 cm/s for a sweep and 3 cm/s for a hop (over 300 random scenes the largest errors were
+    1.0 and 2.5 cm/s, RMS 0.17 and 0.47 cm/s: a window that holds two hops dates its delay toward the
+    higher-frequency one, so a hop's delay track is jittered in time by up to a quarter dwell)."""
     for _ in range(5):
         source, source_velocity, mobile, mobile_velocity = scene(rng)
         waveform = acoustics.Waveform.random(kind, rng)
@@ -58,7 +60,7 @@ def test_noise_free_front_end_matches_the_geometry(kind, rng):
             assert result.range_rate_difference == pytest.approx(rrd, abs=2e-3)
         else:
             assert result.range_difference == pytest.approx(rd, abs=2e-3 * abs(rd) + 2e-3)
-            assert result.range_rate_difference == pytest.approx(rrd, abs=2e-2)
+            assert result.range_rate_difference == pytest.approx(rrd, abs=1.5e-2 if kind == "sweep" else 3e-2)
         assert result.coherence > 0.99
 
 
@@ -110,6 +112,23 @@ def test_noise_power_in_the_band_is_the_noise_level(rng):
         in_band = spectrum[(magnitude >= low) & (magnitude <= high)].sum()
         power = in_band / 2 if baseband else in_band  # an envelope carries twice the real signal's power
         assert 10 * np.log10(power) == pytest.approx(level, abs=0.3)
+
+
+@pytest.mark.parametrize("kind", ["tone", "hop"])
+def test_filtered_noise_matches_its_closed_form_on_both_paths(kind, rng):
+    """Noise alone through either path's band-pass: the envelope's power is 2 N B_n / B (B_n the
+    integral of |H|^4, :func:`~aasl_gym.acoustics.noise_bandwidth`) and its one-sample correlation is
+    :func:`~aasl_gym.acoustics.noise_lag_product`, within 4 % over 4 s of samples. The envelope's
+    mirror band (negative frequencies) must not let noise through."""
+    waveform = acoustics.Waveform.random(kind, rng)
+    level, band = 80.0, waveform.band
+    for baseband, rate in ((True, 10_000.0), (False, 200_000.0)):
+        channel = acoustics.synthesize(waveform, 0.0, 4.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng)
+        noise = acoustics.envelopes(channel, waveform, 10_000.0, 0.02).fixed
+        power = 2 * 10 ** (level / 10) * acoustics.noise_bandwidth(band) / (band[1] - band[0])
+        assert np.mean(np.abs(noise) ** 2) == pytest.approx(power, rel=0.04)
+        lag_product = acoustics.noise_lag_product(level, band, waveform.carrier, 10_000.0)
+        assert abs(np.vdot(noise[:-1], noise[1:]) / (len(noise) - 1) - lag_product) < 0.04 * abs(lag_product)
 
 
 def test_range_difference_noise_follows_the_cramer_rao_bound(rng):
@@ -215,3 +234,35 @@ def test_front_end_measures_the_snr_model(path, rng):
         snrs = np.array([front_end.measure(rng, 1.0, source, np.zeros(3), mobile, np.zeros(3), FIXED)[1] for _ in range(10)])
         model = [140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level for receiver in (mobile, FIXED)]
         np.testing.assert_allclose(10 * np.log10(snrs.mean(axis=0)), model, atol=1.0)
+
+
+@pytest.mark.parametrize("kind", ["sweep", "hop"])
+def test_wideband_spread_is_covered_by_the_filter_noise_model(kind, rng):
+    """Sweep and hop frames get the tone formula at the carrier's wavelength over their whole band
+    (their delay comes from the correlation phase just as a tone's; the flat spectrum's RMS frequency
+    is only 4 % above the carrier). Against 200 noisy frames at in-band SNRs near 12 and 22 dB the
+    spread of RD and RRD lies within 0.8-1.4x that sd, so ``signal.sd_inflation`` (1.5) covers it."""
+    source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
+    waveform = acoustics.Waveform.random(kind, rng)
+    rd = geometry.range_difference(source, mobile, FIXED)
+    for noise_level in (104.0, 94.0):
+        results = [measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng) for _ in range(200)]
+        snr = [10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10) for receiver in (mobile, FIXED)]
+        sd_rd, sd_rrd = acoustics.tone_measurement_sd(snr[0], snr[1], C / waveform.carrier, waveform.band[1] - waveform.band[0], 0.2)
+        assert 0.8 < np.std([r.range_difference - rd for r in results]) / sd_rd < 1.4
+        assert 0.8 < np.std([r.range_rate_difference for r in results]) / sd_rrd < 1.4
+
+
+def test_a_delay_longer_than_a_window_is_measured(rng):
+    """A robot 38 m out and a source by the pod: a sweep's delay (about 23 ms) exceeds a 20 ms window,
+    so the frame's first window has no aligned samples and is dropped; RD and RRD still match the
+    geometry within the noise-free bounds above."""
+    source, source_velocity = np.array([1.0, 0.5, -5.0]), np.array([0.3, 0.0, 0.0])
+    mobile, mobile_velocity = np.array([38.0, 0.0, -5.0]), np.array([0.0, 1.0, 0.0])
+    waveform = acoustics.Waveform.random("sweep", rng)
+    result = measure(waveform, source, source_velocity, mobile, mobile_velocity)
+    rd = geometry.range_difference(source, mobile, FIXED)
+    assert rd > 0.02 * C
+    assert result.range_difference == pytest.approx(rd, abs=2e-3 * abs(rd) + 2e-3)
+    rrd = geometry.range_rate_difference(source, source_velocity, mobile, mobile_velocity, FIXED)
+    assert result.range_rate_difference == pytest.approx(rrd, abs=1.5e-2)

@@ -117,7 +117,7 @@ def test_info_contract_over_a_whole_episode():
 
 
 def test_geometric_track_is_truth_plus_a_whole_number_of_wavelengths():
-    env = gym.make("AASL-v0", reflections=False, config={"receiver": {"nav_position_sd": 0.0}})
+    env = gym.make("AASL-v0", measurement="geometric", reflections=False, config={"receiver": {"nav_position_sd": 0.0}})
     env.reset(seed=5)
     offsets = []
     for _ in range(200):
@@ -205,3 +205,19 @@ def test_signal_mode_measures_the_geometry_up_to_whole_wavelengths():
         assert info["snr_db"] == pytest.approx(env._snr_db(), abs=1.0)
     assert len(set(offsets)) == 1
     assert np.std(rrd_errors) < 1.5  # the R handed to the filter is not too small
+
+
+@pytest.mark.parametrize("waveform", ["sweep", "hop"])
+def test_wideband_signal_mode_is_not_unwrapped(waveform):
+    """A sweep's or hop's delay is unambiguous: the env hands its RD on as measured, so it matches the
+    geometry itself (no whole-wavelength offset) within a few sd of the R the filter is told, plus the
+    2e-3 |RD| of two Doppler-scaled copies."""
+    config = {**SIGNAL, "source": {"waveform": waveform}}
+    env = gym.make("AASL-Helix-v0", config=config, source_motion="cv", reflections=False, multipath="none").unwrapped
+    env.reset(seed=3)
+    for _ in range(40):
+        *_, info = env.step(np.zeros(3))
+        sd = np.sqrt(np.diag(env.sensor.covariance))
+        error = info["measurement"] - info["measurement_true"]
+        assert abs(error[0]) < 5 * sd[0] + 2e-3 * abs(info["measurement_true"][0])
+        assert abs(error[1]) < 5 * sd[1] + 0.03
