@@ -26,6 +26,7 @@ from aasl_gym.io import atomic_write, atomic_write_json, atomic_write_text
 from aasl_gym.metrics import SUCCESS_THRESHOLDS
 
 MOTIONS = ("static", "cv", "ca", "ctrv", "mixed")
+SCRIPTED_POLICIES = ("helix", "spiral", "circle", "lawnmower", "greedy", "random")  # agents.make_policy names
 FILTER_CHOICES = ("cv", "ca", "ctrv", "matched")
 MATCHED_FILTER = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv", "mixed": "cv"}
 
@@ -43,7 +44,7 @@ class Job:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--policies", nargs="+", default=["helix", "spiral"], help="helix spiral circle lawnmower random, or ALGO:PATH")
+    parser.add_argument("--policies", nargs="+", default=["helix", "spiral"], help="helix spiral circle lawnmower greedy random, or ALGO:PATH")
     parser.add_argument("--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=MOTIONS)
     parser.add_argument("--initializers", nargs="+", default=["lcmap"], choices=INITIALIZERS)
     parser.add_argument("--episodes", type=int, default=10, help="episodes per combination (seeds S .. S+N-1)")
@@ -63,8 +64,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
     for policy in args.policies:
-        if ":" not in policy and policy not in ("helix", "spiral", "circle", "lawnmower", "random"):
-            parser.error(f"--policies: unknown policy {policy!r}; allowed: helix spiral circle lawnmower random, or ALGO:PATH")
+        if ":" not in policy and policy not in SCRIPTED_POLICIES:
+            parser.error(f"--policies: unknown policy {policy!r}; allowed: {' '.join(SCRIPTED_POLICIES)}, or ALGO:PATH")
     return args
 
 

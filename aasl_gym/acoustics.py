@@ -12,7 +12,8 @@ path its complex envelope ``exp(-j 2 pi f_c t)`` times it, synthesized directly 
 
 Amplitudes. ``source_level_db`` is the RMS pressure at 1 m (dB re 1 uPa) and ``noise_level_db`` the
 noise power in the receiver band (dB re 1 uPa^2), so a receiver at range r sees
-SNR = source_level - 20 log10(r) - noise_level (dB) after its band-pass filter.
+SNR = source_level - 20 log10(r) - noise_level (dB) after its band-pass filter. The noise is white;
+the fast path draws it in the frequency domain, only in the bins its band-pass lets through.
 
 Filtering. Both paths apply the same 4th-order zero-phase Butterworth band-pass (SciPy's analog
 design, its power gain applied in the frequency domain); the hardware path's one real FFT per channel
@@ -43,6 +44,16 @@ from scipy import integrate, signal
 from aasl_gym import geometry
 
 WAVEFORM_KINDS = ("tone", "sweep", "hop")
+
+
+def receiver_band(kind: str, frequency: float = 1000.0, low: float = 500.0, high: float = 1500.0) -> tuple[float, float]:
+    """Hz, the receiver's band for a waveform: +-10 % about a tone's f0, else the sweep's or hops' range."""
+    return (0.9 * frequency, 1.1 * frequency) if kind == "tone" else (low, high)
+
+
+def carrier_frequency(kind: str, frequency: float = 1000.0, low: float = 500.0, high: float = 1500.0) -> float:
+    """Hz, the frequency the complex envelopes are taken about: f0 for a tone, else the band's centre."""
+    return frequency if kind == "tone" else 0.5 * (low + high)
 
 
 @dataclass(frozen=True)
@@ -85,12 +96,12 @@ class Waveform:
     @property
     def carrier(self) -> float:
         """Hz, the frequency the complex envelope is taken about."""
-        return self.frequency if self.kind == "tone" else 0.5 * (self.low + self.high)
+        return carrier_frequency(self.kind, self.frequency, self.low, self.high)
 
     @property
     def band(self) -> tuple[float, float]:
         """Hz, the receiver band (tone: +-10 % about f0)."""
-        return (0.9 * self.frequency, 1.1 * self.frequency) if self.kind == "tone" else (self.low, self.high)
+        return receiver_band(self.kind, self.frequency, self.low, self.high)
 
     def phase_at(self, t: np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)

@@ -13,9 +13,9 @@ from gymnasium import spaces
 from aasl_gym import metrics, rewards
 from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_config, to_dict
 from aasl_gym.estimator import SourceTracker
-from aasl_gym.fisher import InformationTracker, measurement_jacobian
+from aasl_gym.fisher import InformationTracker, information_prior, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
-from aasl_gym.measurements import GeometricSensor, Propagation, SignalSensor, direct_measurement
+from aasl_gym.measurements import GeometricSensor, Propagation, SignalSensor, direct_measurement, navigation_covariance
 from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 
@@ -198,9 +198,8 @@ class AASLEnv(gym.Env):
         self.patrol_geometry = PatrolGeometry(self.fixed, np.asarray(cfg.receiver.start_position, dtype=float))
         measurement_sd = np.array([cfg.measurement.range_difference_sd, cfg.measurement.range_rate_difference_sd])
         self.acoustic_covariance = np.diag(measurement_sd**2)
-        navigation_variance = np.array([cfg.receiver.nav_position_sd**2, cfg.receiver.velocity_sd**2])
         # The navigation term of R_eff (zero without compensation); geometric mode's R is fixed, signal mode's per frame.
-        self.navigation_covariance = np.diag(navigation_variance) if cfg.filter.compensate_navigation else np.zeros((2, 2))
+        self.navigation_covariance = navigation_covariance(cfg)
         self.filter_covariance = self.acoustic_covariance + self.navigation_covariance
         self.propagation = Propagation.from_config(cfg.world, cfg.source.frequency)
         period = cfg.wavelength if cfg.source.waveform == "tone" else None
@@ -212,9 +211,7 @@ class AASLEnv(gym.Env):
         self.tracker = SourceTracker(cfg, self.source_region, self.filter_covariance)
         self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
-        ini = cfg.initializer
-        self.prior_mean = np.array([0.0, 0.0, -0.5 * cfg.source.initial_radius, 0, 0, 0, 0, 0])
-        self.prior_covariance = np.diag([ini.position_sd**2] * 3 + [ini.velocity_prior_sd**2] * 3 + [cfg.source.initial_radius**2, ini.rate_bias_sd**2])
+        self.prior_mean, self.prior_covariance = information_prior(cfg)
         self.surface_depth = cfg.receiver.surface_depth if cfg.receiver.kind == "surface" else None
         self._renderer = None
         self._time = 0.0

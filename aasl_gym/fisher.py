@@ -15,6 +15,17 @@ from __future__ import annotations
 import numpy as np
 
 from aasl_gym import geometry
+from aasl_gym.config import EnvConfig
+
+
+def information_prior(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of [p, v, b_p, b_v] before any measurement: the source somewhere within
+    ``initializer.position_sd`` of a point half the start radius down, slow, with an unknown
+    whole-period offset (sd: the start radius) and a small clock-rate bias."""
+    ini, radius = config.initializer, config.source.initial_radius
+    mean = np.array([0.0, 0.0, -0.5 * radius, 0, 0, 0, 0, 0])
+    covariance = np.diag([ini.position_sd**2] * 3 + [ini.velocity_prior_sd**2] * 3 + [radius**2, ini.rate_bias_sd**2])
+    return mean, covariance
 
 
 def cv_transition_matrix(dt: float) -> np.ndarray:

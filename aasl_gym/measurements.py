@@ -56,6 +56,49 @@ def multipath_measurement(model: str, propagation: Propagation, position, veloci
     return np.stack([rd, rrd], axis=-1)
 
 
+def navigation_covariance(config: EnvConfig) -> np.ndarray:
+    """The navigation term of R_eff, diag(sigma_rov^2, sigma_vel^2) (zero without compensation): what the
+    robot's reported position and velocity errors add to RD and RRD at most, to first order."""
+    receiver = config.receiver
+    if not config.filter.compensate_navigation:
+        return np.zeros((2, 2))
+    return np.diag([receiver.nav_position_sd**2, receiver.velocity_sd**2])
+
+
+def signal_noise_sd(config: EnvConfig, snr_mobile, snr_fixed) -> np.ndarray:
+    """sd of [RD, RRD] (m, m/s), shape (..., 2), the filter is told for a frame at these in-band SNRs (linear): the
+    Cramer-Rao sd of :func:`~aasl_gym.acoustics.tone_measurement_sd` at the carrier's wavelength over the
+    receiver band, times ``signal.sd_inflation``, floored at ``signal.min_*_sd`` (see :class:`SignalSensor`)."""
+    source, sig = config.source, config.signal
+    band = acoustics.receiver_band(source.waveform, source.frequency)
+    wavelength = config.world.sound_speed / acoustics.carrier_frequency(source.waveform, source.frequency)
+    sd = np.stack(acoustics.tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], sig.frame_duration), axis=-1)
+    return np.maximum(sig.sd_inflation * sd, [sig.min_range_difference_sd, sig.min_range_rate_difference_sd])
+
+
+def model_snr(config: EnvConfig, source_position: np.ndarray, receiver_position: np.ndarray) -> np.ndarray:
+    """The SNR model's in-band SNR (linear) at a receiver: source level - 20 log10(range / 1 m) - noise
+    level (dB), the range floored at 1 m; broadcasts over leading dimensions."""
+    distance = np.maximum(np.linalg.norm(np.asarray(source_position) - np.asarray(receiver_position), axis=-1), 1.0)
+    return 10 ** ((config.source.source_level_db - 20 * np.log10(distance) - config.world.noise_level_db) / 10)
+
+
+def expected_noise_covariance(config: EnvConfig, source_position: np.ndarray, mobile: np.ndarray) -> np.ndarray:
+    """R_eff (..., 2, 2) a measurement would have with the source at ``source_position`` and the mobile
+    hydrophone at ``mobile`` (m; broadcasts): geometric mode's fixed sd, or in signal mode the sd of
+    :func:`signal_noise_sd` at the SNR model's SNRs; plus the navigation term. For planning ahead,
+    where no frame has been measured yet."""
+    fixed = np.asarray(config.world.fixed_position, dtype=float)
+    if config.measurement.mode == "signal":
+        sd = signal_noise_sd(config, model_snr(config, source_position, mobile), model_snr(config, source_position, fixed))
+    else:
+        shape = np.broadcast_shapes(np.shape(source_position), np.shape(mobile))[:-1]
+        sd = np.broadcast_to([config.measurement.range_difference_sd, config.measurement.range_rate_difference_sd], shape + (2,))
+    covariance = np.zeros(sd.shape + (2,))
+    covariance[..., 0, 0], covariance[..., 1, 1] = sd[..., 0] ** 2, sd[..., 1] ** 2
+    return covariance + navigation_covariance(config)
+
+
 class Unwrapper:
     """Whole-period unwrapping of a range-difference track (period = one wavelength, m)."""
 
@@ -138,10 +181,5 @@ class SignalSensor:
     def measure(self, rng: np.random.Generator, time: float, position, velocity, mobile, mobile_velocity, fixed,
                 range_rate_bias: float = 0.0) -> np.ndarray:
         result, self.snr = self.front_end.measure(rng, time, position, velocity, mobile, mobile_velocity, fixed)
-        sig, waveform = self.config.signal, self.front_end.waveform
-        band = waveform.band
-        sd = np.array(acoustics.tone_measurement_sd(self.snr[0], self.snr[1], self.config.world.sound_speed / waveform.carrier,
-                                                    band[1] - band[0], sig.frame_duration))
-        sd = np.maximum(sig.sd_inflation * sd, [sig.min_range_difference_sd, sig.min_range_rate_difference_sd])
-        self.covariance = np.diag(sd**2)
+        self.covariance = np.diag(signal_noise_sd(self.config, self.snr[0], self.snr[1]) ** 2)
         return np.array([self.unwrapper(result.range_difference), result.range_rate_difference + range_rate_bias])

@@ -55,11 +55,19 @@ class ZeroPolicy:
         return np.zeros(np.shape(observation)[:-1] + (3,), dtype=np.float32), state
 
 
+POLICIES = (*PATROLS, "greedy", "random", "zero")
+
+
 def make_policy(name: str, config: EnvConfig, seed: int | None = None):
+    """The policy called ``name`` (one of :data:`POLICIES`) for envs built from ``config``."""
     if name in PATROLS:
         return PatrolPolicy(name, config)
+    if name == "greedy":
+        from agents.greedy import GreedyInformationPolicy  # imports the env's information machinery
+
+        return GreedyInformationPolicy(config)
     if name == "random":
         return RandomPolicy(seed)
     if name == "zero":
         return ZeroPolicy()
-    raise ValueError(f"unknown policy {name!r}; allowed: {list(PATROLS) + ['random', 'zero']} or ALGO:PATH")
+    raise ValueError(f"unknown policy {name!r}; allowed: {list(POLICIES)} or ALGO:PATH")
