@@ -95,7 +95,8 @@ def main() -> None:
         ("free field, ctrv source and filter", dict(reflections=False, multipath="none", source_motion="ctrv", filter_model="ctrv")),
         ("reflections on, phasor filter (default)", dict(source_motion="cv")),
     ):
-        rate = statistics.median(env_steps_per_second("AASL-Helix-v0", args.episodes, **kwargs) for _ in range(max(1, args.repeats // 2)))
+        rate = statistics.median(env_steps_per_second("AASL-Helix-v0", args.episodes, measurement="geometric", **kwargs)
+                                 for _ in range(max(1, args.repeats // 2)))
         print(f"env steps/s, geometric, {label}: {rate:,.0f}   [goal >= 5,000]")
 
 

@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> None:
         for radius, period, motion in itertools.product(args.radii, args.depth_periods, args.motions):
             config = EnvConfig().replace(patrol={"radius": radius, "depth_period": period},
                                          receiver={"start_position": [radius, 0.0, -7.0]},
-                                         source={"motion": motion}, world={"reflections": False},
+                                         source={"motion": motion}, world={"reflections": False}, measurement={"mode": "geometric"},
                                          filter={"multipath": "none"}, initializer={"name": "naive"})
             env = AASLEnv(config, patrol="helix")
             times = np.array([time_to_bound(env, seed, args.target) for seed in range(args.episodes)])
