@@ -40,6 +40,7 @@ class Job:
     seed: int
     config: dict
     filter_model: str | None
+    record: bool = False  # keep the episode's paths for the trajectory plots
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -58,9 +59,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--workers", type=int, default=1, help="processes")
     parser.add_argument("--out", type=Path, default=Path("results/evaluation"))
     parser.add_argument("--no-plots", action="store_true")
+    parser.add_argument("--trajectories", type=int, default=2, help="episodes per policy and motion drawn in top and depth views")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.trajectories < 0:
+        parser.error(f"--trajectories must be >= 0, got {args.trajectories}")
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
     for policy in args.policies:
@@ -100,7 +104,7 @@ def run_episode(job: Job) -> dict[str, Any]:
         value = float(value)
         return value if math.isfinite(value) else None
 
-    return {
+    row = {
         "policy": job.policy,
         "initializer": job.initializer,
         "motion": job.motion,
@@ -114,6 +118,9 @@ def run_episode(job: Job) -> dict[str, Any]:
         "time_to_first_estimate": number(info["time_to_first_estimate"]),
         "reinitializations": int(info["reinitializations"]),
     }
+    if job.record:
+        row["trajectory"] = {name: np.asarray(points).tolist() for name, points in env.trajectory.items()}
+    return row
 
 
 def mean_ci95(values: np.ndarray) -> tuple[float | None, list[float | None]]:
@@ -280,6 +287,26 @@ def write_plots(out: Path, rows: list[dict], summary: list[dict]) -> list[str]:
     return names
 
 
+def write_trajectory_plots(out: Path, trajectories: list[tuple[str, str, int, dict]], config: EnvConfig) -> list[str]:
+    """One figure per motion: for each recorded episode (policy, seed) the top and depth views of the
+    robot's path, the source's and the estimate's (``aasl_gym.render.draw_episode``)."""
+    from matplotlib.figure import Figure
+
+    from aasl_gym.render import draw_episode
+
+    names = []
+    fixed = np.asarray(config.world.fixed_position, dtype=float)
+    for motion in sorted({t[1] for t in trajectories}, key=lambda m: MOTIONS.index(m) if m in MOTIONS else 99):
+        episodes = sorted((t for t in trajectories if t[1] == motion), key=lambda t: (t[0], t[2]))
+        figure = Figure(figsize=(10, 4.2 * len(episodes)))
+        for panel, (policy, _, seed, paths) in zip(np.atleast_1d(figure.subfigures(len(episodes), 1)), episodes):
+            draw_episode(panel, paths, fixed, None, config.episode.duration, config, title=f"{policy}, {motion} source, seed {seed}")
+        name = f"trajectories_{motion}.png"
+        atomic_write(out / name, lambda tmp: figure.savefig(tmp, dpi=80, bbox_inches="tight", format="png"))
+        names.append(name)
+    return names
+
+
 def build_jobs(args: argparse.Namespace, config: EnvConfig) -> list[Job]:
     data = to_dict(config)
     if args.reflections is not None:
@@ -293,7 +320,8 @@ def build_jobs(args: argparse.Namespace, config: EnvConfig) -> list[Job]:
         for policy in args.policies:
             for initializer in args.initializers:
                 for seed in range(args.seed, args.seed + args.episodes):
-                    jobs.append(Job(policy, initializer, motion, measurement, seed, data, filter_model))
+                    record = not args.no_plots and initializer == args.initializers[0] and seed < args.seed + args.trajectories
+                    jobs.append(Job(policy, initializer, motion, measurement, seed, data, filter_model, record))
     return jobs
 
 
@@ -329,6 +357,7 @@ def main(argv: list[str] | None = None) -> int:
             rows = list(tqdm(pool.map(run_episode, jobs, chunksize=4), total=len(jobs), desc="episodes", unit="ep"))
     else:
         rows = [run_episode(job) for job in tqdm(jobs, desc="episodes", unit="ep")]
+    trajectories = [(row["policy"], row["motion"], row["seed"], row.pop("trajectory")) for row in rows if "trajectory" in row]
     summary = summarize(rows, config.episode.duration)
     comparisons = {}
     if len(args.initializers) > 1:
@@ -338,9 +367,9 @@ def main(argv: list[str] | None = None) -> int:
         baseline = "helix" if "helix" in args.policies else args.policies[0]
         comparisons["policy"] = paired_comparisons(rows, config.episode.duration, "policy", baseline)
     args.out.mkdir(parents=True, exist_ok=True)
-    plots = [] if args.no_plots else write_plots(args.out, rows, summary)
     # The config the episodes ran with: the file's, with the command line's world, filter and measurement mode.
     effective = config.replace(world=jobs[0].config["world"], filter=jobs[0].config["filter"], measurement={"mode": jobs[0].measurement})
+    plots = [] if args.no_plots else write_plots(args.out, rows, summary) + write_trajectory_plots(args.out, trajectories, effective)
     atomic_write_json(args.out / "results.json", {"command": command, "config": to_dict(effective), "episodes": rows, "summary": summary, "comparisons": comparisons})
     write_report(args.out / "report.md", command, effective, summary, comparisons, plots)
     print(f"\n{'policy':<12} {'initializer':<9} {'motion':<7} {'n':>4} {'succ@1m':>8} {'conv (s)':>9} {'RMSE med':>9}")

@@ -2,9 +2,12 @@
 
     python train.py --algo ppo [--env AASL-v0] [--config FILE] [--timesteps N] [--n-envs K] [--seed S] [--out DIR]
 
-Writes DIR/model.zip, DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints
-under DIR/checkpoints/ and, when TensorBoard is installed, logs under DIR/tb/. Every file is written
-atomically.
+Writes DIR/model.zip (with DIR/model.vecnormalize.pkl when the schedule normalizes observations or
+rewards), DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints under
+DIR/checkpoints/, the best model of the periodic evaluations under DIR/best/ and, when TensorBoard is
+installed, logs under DIR/tb/. Every file is written atomically. The periodic evaluation runs the
+same seeds each time (``schedule.eval_seed`` onward), which training never uses: training env i
+starts from seed S + i and every later episode continues that env's generator.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from pathlib import Path
 import yaml
 
 from aasl_gym.config import ConfigError, load_config, save_config
-from aasl_gym.io import atomic_write, atomic_write_text
+from aasl_gym.io import atomic_write_text
 from aasl_gym.registration import ENV_IDS
 
 ROOT = Path(__file__).resolve().parent
@@ -61,22 +64,33 @@ def main(argv=None) -> int:
         print(f"error: --hyperparameters: {args.hyperparameters} needs a 'schedule' section and a '{args.algo}' section", file=sys.stderr)
         return 2
     schedule = hyper["schedule"]
-    timesteps = args.timesteps or int(schedule["timesteps"])
-    n_envs = args.n_envs or int(schedule["n_envs"])
+    try:
+        timesteps = args.timesteps or int(schedule["timesteps"])
+        n_envs = args.n_envs or int(schedule["n_envs"])
+        eval_every, eval_episodes = int(schedule["eval_every"]), int(schedule["eval_episodes"])
+        eval_seed, checkpoint_every = int(schedule["eval_seed"]), int(schedule["checkpoint_every"])
+        normalize_observation = bool(schedule.get("normalize_observation", False))
+        normalize_reward = bool(schedule.get("normalize_reward", False))
+    except (KeyError, TypeError, ValueError) as exc:
+        print(f"error: --hyperparameters: schedule needs integer timesteps, n_envs, eval_every, eval_episodes, eval_seed "
+              f"and checkpoint_every ({type(exc).__name__}: {exc})", file=sys.stderr)
+        return 2
     out = args.out or ROOT / "runs" / f"{args.algo}-{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
 
-    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+    import gymnasium as gym
     from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import SubprocVecEnv
+    from stable_baselines3.common.vec_env import SubprocVecEnv, VecNormalize
 
-    from agents.sb3 import algorithm_class
+    from agents.sb3 import algorithm_class, make_callbacks, save_model
 
     env_id = f"aasl_gym:{args.env}"
     env_kwargs = {"config": config}
     vec_cls = SubprocVecEnv if n_envs > 1 else None
     envs = make_vec_env(env_id, n_envs=n_envs, seed=args.seed, env_kwargs=env_kwargs, vec_env_cls=vec_cls)
-    eval_env = make_vec_env(env_id, n_envs=1, seed=int(schedule["eval_seed"]), env_kwargs=env_kwargs)
+    if normalize_observation or normalize_reward:
+        gamma = float(hyper[args.algo].get("gamma", 0.99))
+        envs = VecNormalize(envs, norm_obs=normalize_observation, norm_reward=normalize_reward, gamma=gamma)
     try:
         import tensorboard  # noqa: F401
 
@@ -85,21 +99,24 @@ def main(argv=None) -> int:
         tensorboard_log = None
     cls = algorithm_class(args.algo)
     policy = "MlpLstmPolicy" if args.algo == "recurrent-ppo" else "MlpPolicy"
-    model = cls(policy, envs, seed=args.seed, verbose=0, tensorboard_log=tensorboard_log, device="auto", **hyper[args.algo])
-    callbacks = [
-        CheckpointCallback(max(1, int(schedule["checkpoint_every"]) // n_envs), str(out / "checkpoints"), name_prefix=args.algo),
-        EvalCallback(eval_env, n_eval_episodes=int(schedule["eval_episodes"]), eval_freq=max(1, int(schedule["eval_every"]) // n_envs),
-                     best_model_save_path=str(out / "best"), log_path=str(out / "eval"), deterministic=True, verbose=0),
-    ]
-    print(f"training {args.algo} on {args.env} for {timesteps} steps with {n_envs} envs -> {out}")
+    try:
+        model = cls(policy, envs, seed=args.seed, verbose=0, tensorboard_log=tensorboard_log, device="auto", **hyper[args.algo])
+    except TypeError as exc:
+        print(f"error: --hyperparameters: section '{args.algo}' has a keyword {cls.__name__} does not take ({exc})", file=sys.stderr)
+        return 2
+    eval_seeds = list(range(eval_seed, eval_seed + eval_episodes))
+    callbacks = make_callbacks(out, args.algo, lambda: gym.make(env_id, **env_kwargs), eval_seeds, eval_every,
+                               checkpoint_every, n_envs, report=print)
+    print(f"training {args.algo} on {args.env} for {timesteps:,} steps with {n_envs} envs -> {out}; "
+          f"evaluating every {eval_every:,} steps on seeds {eval_seeds[0]}-{eval_seeds[-1]}")
     model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=True)
-    atomic_write(out / "model.zip", lambda tmp: model.save(tmp))
+    save_model(model, out / "model.zip")
     save_config(config, out / "config.yaml")
     atomic_write_text(out / "hyperparameters.yaml", yaml.safe_dump({"algo": args.algo, "env": args.env, "seed": args.seed,
-                                                                      "timesteps": timesteps, "n_envs": n_envs, **{args.algo: hyper[args.algo]}}))
+                                                                      "timesteps": timesteps, "n_envs": n_envs,
+                                                                      "schedule": schedule, args.algo: hyper[args.algo]}))
     envs.close()
-    eval_env.close()
-    print(f"saved {out / 'model.zip'} and {out / 'config.yaml'}")
+    print(f"saved {out / 'model.zip'} (evaluate with: python evaluate.py --policies helix {args.algo}:{out / 'model.zip'})")
     return 0
 
 

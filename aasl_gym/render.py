@@ -31,7 +31,7 @@ def draw_episode(figure: Figure, trajectory: dict[str, list[np.ndarray]], fixed:
     """Top view (x-y) and depth view (x-z) of the robot, source and estimate paths."""
     figure.clear()
     top, side = figure.subplots(1, 2)
-    limit = config.world.region_radius
+    limit = max(config.world.region_radius, config.receiver.region_radius)  # the robot may roam beyond the source's region
     for ax, (i, j), labels in ((top, (0, 1), ("x (m)", "y (m)")), (side, (0, 2), ("x (m)", "z (m)"))):
         for name in ("receiver", "source", "estimate"):
             points = np.asarray(trajectory.get(name, []))

@@ -1,9 +1,23 @@
-"""Stable-Baselines3 glue: the only module that imports stable_baselines3 (and sb3_contrib)."""
+"""Stable-Baselines3 glue: the only module that imports stable_baselines3 (and sb3_contrib).
+
+A saved policy is ``NAME.zip`` (the SB3 model) and, when training normalized observations or rewards,
+``NAME.vecnormalize.pkl`` beside it (the running statistics); :func:`load_model` picks both up, so a
+loaded policy sees observations exactly as it did in training. Both are written atomically.
+"""
 
 from __future__ import annotations
 
+import logging
+import pickle
 import zipfile
 from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from aasl_gym.io import atomic_write
+
+logger = logging.getLogger(__name__)
 
 ALGORITHMS = ("ppo", "sac", "td3", "a2c", "recurrent-ppo")
 
@@ -23,8 +37,38 @@ def algorithm_class(name: str):
     return getattr(stable_baselines3, name.upper())
 
 
-def load_model(spec: str, device: str = "cpu"):
-    """Load ``ALGO:PATH`` (e.g. ``ppo:runs/x/model.zip``) with a clear error if it is missing or corrupt."""
+def statistics_path(model_path: str | Path) -> Path:
+    """Where a model's normalization statistics live: ``NAME.zip`` -> ``NAME.vecnormalize.pkl``."""
+    path = Path(model_path)
+    return path.with_name(path.stem + ".vecnormalize.pkl")
+
+
+def save_model(model, path: str | Path) -> Path:
+    """Save ``model`` to ``path`` (a .zip) and its VecNormalize statistics beside it, each atomically."""
+    path = Path(path)
+    atomic_write(path, lambda tmp: model.save(tmp))
+    normalizer = model.get_vec_normalize_env()
+    if normalizer is not None:
+        atomic_write(statistics_path(path), lambda tmp: normalizer.save(tmp))
+    return path
+
+
+class LoadedPolicy:
+    """A trained model with the observation normalization it was trained with, behind ``predict``."""
+
+    def __init__(self, model, normalizer=None):
+        self.model = model
+        self.normalizer = normalizer  # a VecNormalize without its env, or None
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(np.asarray(observation, dtype=np.float32))
+        return self.model.predict(observation, state=state, episode_start=episode_start, deterministic=deterministic)
+
+
+def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
+    """Load ``ALGO:PATH`` (e.g. ``ppo:runs/x/model.zip``) and its normalization statistics, if saved,
+    with a clear error if either is missing or corrupt."""
     algo, sep, path = spec.partition(":")
     if not sep or not path:
         raise ValueError(f"model {spec!r}: expected ALGO:PATH, e.g. ppo:models/ppo_default.zip")
@@ -35,6 +79,85 @@ def load_model(spec: str, device: str = "cpu"):
     if not zipfile.is_zipfile(file):
         raise ValueError(f"model {spec!r}: {file} is not a Stable-Baselines3 model (not a zip archive)")
     try:
-        return cls.load(file, device=device)
+        model = cls.load(file, device=device)
     except Exception as exc:  # SB3 raises many kinds on a damaged archive
         raise ValueError(f"model {spec!r}: {file} could not be loaded ({type(exc).__name__}: {exc})") from exc
+    stats = statistics_path(file)
+    normalizer = None
+    if stats.is_file():
+        try:
+            with open(stats, "rb") as handle:
+                normalizer = pickle.load(handle)
+        except Exception as exc:
+            raise ValueError(f"model {spec!r}: its statistics {stats} could not be loaded ({type(exc).__name__}: {exc})") from exc
+        if not hasattr(normalizer, "normalize_obs"):
+            raise ValueError(f"model {spec!r}: {stats} holds no VecNormalize statistics")
+        normalizer.training = False
+    return LoadedPolicy(model, normalizer)
+
+
+def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds: list[int], eval_every: int,
+                   checkpoint_every: int, n_envs: int, report: Callable[[str], None]):
+    """The training callbacks: evaluation on fixed seeds (keeping the best model) and atomic checkpoints.
+
+    ``eval_every`` and ``checkpoint_every`` count environment steps over all ``n_envs`` envs.
+    ``report`` receives one line per evaluation (the CLI prints it).
+    """
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class FixedSeedEvaluation(BaseCallback):
+        """Runs the policy deterministically on the same seeds every time, so evaluations compare."""
+
+        def __init__(self):
+            super().__init__()
+            self.env = make_env()
+            self.best = -np.inf
+            self.next_at = eval_every
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps < self.next_at:
+                return True
+            self.next_at += eval_every
+            normalizer = self.model.get_vec_normalize_env()
+            policy = LoadedPolicy(self.model, normalizer)
+            returns, successes, times = [], [], []
+            for seed in eval_seeds:
+                obs, _ = self.env.reset(seed=seed)
+                state, start, done, total = None, np.ones(1, dtype=bool), False, 0.0
+                while not done:
+                    action, state = policy.predict(obs[None], state=state, episode_start=start, deterministic=True)
+                    start = np.zeros(1, dtype=bool)
+                    obs, reward, terminated, truncated, info = self.env.step(action[0])
+                    total += reward
+                    done = terminated or truncated
+                returns.append(total)
+                successes.append(bool(info["success"]["1.0"]))
+                times.append(float(info["convergence_time"]))
+            mean_return = float(np.mean(returns))
+            converged = [t for t in times if np.isfinite(t)]
+            self.logger.record("eval/mean_return", mean_return)
+            self.logger.record("eval/success_1m", float(np.mean(successes)))
+            if converged:
+                self.logger.record("eval/mean_convergence_time", float(np.mean(converged)))
+            line = (f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m {np.mean(successes):.0%}, "
+                    f"mean convergence time {np.mean(converged):.1f} s" if converged else
+                    f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m 0%")
+            if mean_return > self.best:
+                self.best = mean_return
+                save_model(self.model, out / "best" / "model.zip")
+                line += " (best so far, saved)"
+            report(line)
+            return True
+
+    class AtomicCheckpoint(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.next_at = checkpoint_every
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.next_at:
+                self.next_at += checkpoint_every
+                save_model(self.model, out / "checkpoints" / f"{algo}_{self.num_timesteps}.zip")
+            return True
+
+    return [FixedSeedEvaluation(), AtomicCheckpoint()]

@@ -12,11 +12,12 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     code = evaluate.main(["--policies", "helix", "circle", "--initializers", "lcmap", "naive", "--motions", "static",
                           "--episodes", "1", "--reflections", "off", "--multipath", "none", "--out", str(out)])
     assert code == 0
-    for name in ("report.md", "results.json", "convergence_time.png", "success_vs_threshold.png"):
+    for name in ("report.md", "results.json", "convergence_time.png", "success_vs_threshold.png", "trajectories_static.png"):
         assert (out / name).stat().st_size > 0
     results = json.loads((out / "results.json").read_text())
     assert set(results) >= {"command", "config", "episodes", "summary"}
     assert len(results["episodes"]) == 4
+    assert "trajectory" not in results["episodes"][0]  # the paths go into the plots, not the results
     row = results["episodes"][0]
     assert {"policy", "initializer", "motion", "measurement", "seed", "convergence_time", "success", "rmse", "final_error"} <= set(row)
     assert set(row["success"]) == {"0.1", "0.2", "0.5", "1.0", "2.0", "3.0"}
