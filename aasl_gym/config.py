@@ -271,7 +271,8 @@ class InitializerConfig:
 
 @dataclass(frozen=True)
 class RewardConfig:
-    """Weights of the reward terms (each term is reported in info['reward_terms'])."""
+    """Weights of the reward terms (each term is reported in info['reward_terms']); the scale of each
+    term over an episode is tabulated in :mod:`aasl_gym.rewards`."""
 
     information_gain: float = 1.0  # per nat of log det Fisher information gained
     error_shrinkage: float = 0.1  # per metre of true position error removed (privileged)
