@@ -15,7 +15,7 @@ from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_con
 from aasl_gym.estimator import SourceTracker
 from aasl_gym.fisher import InformationTracker, information_prior, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
-from aasl_gym.measurements import GeometricSensor, Propagation, SignalSensor, direct_measurement, navigation_covariance
+from aasl_gym.measurements import GeometricSensor, Propagation, SignalSensor, direct_measurement, model_snr, navigation_covariance
 from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 
@@ -338,9 +338,9 @@ class AASLEnv(gym.Env):
         return self._observation(), reward, terminated, truncated, info
 
     def _snr_db(self) -> float:
-        """SNR of the weaker channel, dB: source level - 20 log10(range / 1 m) - noise level."""
-        far = max(np.linalg.norm(self.source.position - self.receiver_position), np.linalg.norm(self.source.position - self.fixed), 1.0)
-        return float(self.config.source.source_level_db - 20 * np.log10(far) - self.config.world.noise_level_db)
+        """SNR of the weaker channel by the SNR model (dB): source level - 20 log10(range / 1 m) - noise level."""
+        receivers = np.array([self.receiver_position, self.fixed])
+        return float(10 * np.log10(np.min(model_snr(self.config, self.source.position, receivers))))
 
     def episode_summary(self) -> dict[str, Any]:
         """The episode's metrics so far (added to ``info`` on the last step)."""
