@@ -157,7 +157,7 @@ class AASLEnv(gym.Env):
     channel: in signal mode as the front end measures it, else from the source level, spreading and noise level), ``initialized``, ``converged`` (error below the threshold now),
     ``reinitialized``, ``fim_logdet``, ``reward_terms``. On the last step also ``convergence_time``,
     ``rmse``, ``final_error``, ``success`` (threshold -> bool), ``time_to_first_estimate`` and
-    ``reinitializations``. Values that can be NaN (``position_error`` and the last-step metrics) are 0-d float64 arrays, so that two infos from the same seed compare equal NaN for NaN.
+    ``reinitializations``. Values that can be NaN (``position_error`` and the last-step metrics) are 0-d float64 arrays, so that two infos from the same seed compare equal NaN for NaN. (Gymnasium's ``check_env`` compares infos with ``np.allclose``, for which NaN never equals NaN: run it with ``initializer.burst_duration: 0.2``, so that the filter starts on the first step, as ``tests/test_env.py`` does.)
 
     ## Arguments
     ``AASLEnv(config=None, patrol=None, render_mode=None, source_motion=None, measurement=None,

@@ -98,7 +98,8 @@ def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
 
 def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds: list[int], eval_every: int,
                    checkpoint_every: int, n_envs: int, report: Callable[[str], None]):
-    """The training callbacks: evaluation on fixed seeds (keeping the best model) and atomic checkpoints.
+    """The training callbacks: evaluation on fixed seeds (keeping the best model), atomic checkpoints, and
+    the training episodes' metrics in the log.
 
     ``eval_every`` and ``checkpoint_every`` count environment steps over all ``n_envs`` envs.
     ``report`` receives one line per evaluation (the CLI prints it).
@@ -160,4 +161,29 @@ def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds
                 save_model(self.model, out / "checkpoints" / f"{algo}_{self.num_timesteps}.zip")
             return True
 
-    return [FixedSeedEvaluation(), AtomicCheckpoint()]
+    class EpisodeMetrics(BaseCallback):
+        """Logs the training episodes' convergence time, success and final error beside the reward
+        (TensorBoard's ``episode/`` scalars), averaged over the episodes that ended in each rollout."""
+
+        def __init__(self):
+            super().__init__()
+            self.ended: list[dict] = []
+
+        def _on_step(self) -> bool:
+            self.ended += [info for info in self.locals.get("infos", []) if "convergence_time" in info]
+            return True
+
+        def _on_rollout_end(self) -> None:
+            if not self.ended:
+                return
+            times = [float(i["convergence_time"]) for i in self.ended]
+            converged = [t for t in times if np.isfinite(t)]
+            self.logger.record("episode/success_1m", float(np.mean([bool(i["success"]["1.0"]) for i in self.ended])))
+            finals = [float(i["final_error"]) for i in self.ended if np.isfinite(float(i["final_error"]))]
+            if finals:
+                self.logger.record("episode/final_error", float(np.median(finals)))
+            if converged:
+                self.logger.record("episode/convergence_time", float(np.mean(converged)))
+            self.ended = []
+
+    return [FixedSeedEvaluation(), AtomicCheckpoint(), EpisodeMetrics()]

@@ -76,3 +76,25 @@ def test_missing_statistics_file_is_fine_and_a_corrupt_one_is_named(tiny, tmp_pa
         load_model(f"ppo:{out / 'model.zip'}")
     statistics_path(out / "model.zip").unlink()
     assert load_model(f"ppo:{out / 'model.zip'}").normalizer is None
+
+
+def test_training_episodes_log_their_metrics(tmp_path):
+    """The episode-metrics callback averages what the env reports on an episode's last step."""
+    from agents.sb3 import make_callbacks
+
+    recorded = {}
+
+    class Recorder:
+        def record(self, key, value):
+            recorded[key] = value
+
+    metrics = make_callbacks(tmp_path, "ppo", lambda: None, [0], 10, 10, 1, print)[2]
+    metrics.model = type("Model", (), {"logger": Recorder()})()  # the callback logs through its model's logger
+    ends = [{"convergence_time": np.array(30.0), "success": {"1.0": True}, "final_error": np.array(0.4)},
+            {"convergence_time": np.array(np.nan), "success": {"1.0": False}, "final_error": np.array(2.0)}]
+    metrics.locals = {"infos": [ends[0], {"time": 1.0}]}  # a step where one env ended and one did not
+    metrics._on_step()
+    metrics.locals = {"infos": [ends[1]]}
+    metrics._on_step()
+    metrics._on_rollout_end()
+    assert recorded == {"episode/success_1m": 0.5, "episode/final_error": 1.2, "episode/convergence_time": 30.0}
