@@ -92,11 +92,12 @@ class GreedyInformationPolicy:
         if self.surface_depth is not None:
             paths[..., 2] = -self.surface_depth
         source = seen["estimate"] + seen["estimate_velocity"] * lags[:, None]  # (S, 3)
+        jacobians = measurement_jacobian(source[None], seen["estimate_velocity"], paths, self.commands[:, None], self.fixed)  # (C, S, 2, 8)
+        noises = expected_noise_covariance(self.config, source[None], paths)  # (C, S, 2, 2)
         covariance = np.broadcast_to(self.information.covariance, (len(self.commands), 8, 8))
         for k in range(self.steps):
-            jacobian = measurement_jacobian(source[k], seen["estimate_velocity"], paths[:, k], self.commands, self.fixed)
-            noise = expected_noise_covariance(self.config, source[k], paths[:, k])
-            covariance = updated_covariance(self.transition @ covariance @ self.transition.T + self.process_noise, jacobian, noise)
+            predicted = self.transition @ covariance @ self.transition.T + self.process_noise
+            covariance = updated_covariance(predicted, jacobians[:, k], noises[:, k])
         score = position_information_logdet(covariance)
         region = self.region
         inside = (
