@@ -45,7 +45,7 @@ class Job:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--policies", nargs="+", default=["helix", "spiral"], help="helix spiral circle lawnmower greedy random, or ALGO:PATH")
+    parser.add_argument("--policies", nargs="+", default=["helix", "spiral", "greedy"], help="helix spiral circle lawnmower greedy random, or ALGO:PATH")
     parser.add_argument("--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=MOTIONS)
     parser.add_argument("--initializers", nargs="+", default=["lcmap"], choices=INITIALIZERS)
     parser.add_argument("--episodes", type=int, default=10, help="episodes per combination (seeds S .. S+N-1)")
@@ -226,7 +226,8 @@ def write_report(path: Path, command: str, config: EnvConfig, summary: list[dict
     for field, rows in comparisons.items():
         if not rows:
             continue
-        lines += ["", f"## Paired comparison of {field}s against `{rows[0]['baseline']}` (same seeds)", "",
+        plural = {"policy": "policies", "initializer": "initializers"}[field]
+        lines += ["", f"## Paired comparison of {plural} against `{rows[0]['baseline']}` (same seeds)", "",
                   f"| {field} | motion | pairs | both converged | time ratio (both converged) | time ratio (censored) | time difference (censored) [95 % CI] (s) | success 1 m difference |",
                   "|---|---|---|---|---|---|---|---|"]
         for c in rows:
