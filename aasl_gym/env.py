@@ -18,6 +18,7 @@ from aasl_gym.filters import ConstantVelocity
 from aasl_gym.measurements import GeometricSensor, Propagation, SignalSensor, direct_measurement, model_snr, navigation_covariance
 from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
+from aasl_gym.planning import GreedyPlanner
 
 # Keyword arguments of gym.make / AASLEnv that override one config field each.
 OVERRIDES: dict[str, tuple[str, str]] = {
@@ -41,6 +42,8 @@ OBSERVATION_LAYOUT = (
     ("time", 1, "elapsed time / episode duration"),
     ("initialized", 1, "1 once the filter runs, else 0"),
 )
+ENV_PATROLS = (*PATROLS, "greedy")  # what an env's action may be a residual on (``patrol``)
+
 OBSERVATION_SLICES: dict[str, slice] = {}
 _start = 0
 for _name, _length, _ in OBSERVATION_LAYOUT:
@@ -105,7 +108,9 @@ class AASLEnv(gym.Env):
     ``Box(-1, 1, (3,), float32)``: a velocity command scaled by ``receiver.max_speed`` (1.5 m/s). In
     ``AASL-v0`` it is the command itself; in the patrol variants (``AASL-Helix-v0``, ``-Spiral-``,
     ``-Circle-``, ``-Lawnmower-``) it is a residual added to the pattern's command, so a zero action
-    flies the pure scripted patrol. The command's norm is clipped to the speed limit; a surface vessel
+    flies the pure scripted patrol; in ``AASL-Greedy-v0`` it is a residual on the information-greedy
+    planner's command (``aasl_gym.planning``, from the env's information and estimate; the helix until
+    the filter starts). The command's norm is clipped to the speed limit; a surface vessel
     ignores z. Finite actions outside the box are clipped to it; NaN or infinite actions raise
     ``ValueError``. The robot never leaves the water column (``receiver.min_depth``,
     ``bed_clearance``), its region (``receiver.region_radius``) or enters the keep-out sphere
@@ -180,8 +185,8 @@ class AASLEnv(gym.Env):
         **overrides: Any,
     ):
         self.config = resolve_config(config, **overrides)
-        if patrol is not None and patrol not in PATROLS:
-            raise ConfigError(f"patrol={patrol!r}: allowed values are {list(PATROLS)} or None")
+        if patrol is not None and patrol not in ENV_PATROLS:
+            raise ConfigError(f"patrol={patrol!r}: allowed values are {list(ENV_PATROLS)} or None")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode={render_mode!r}: allowed values are {self.metadata['render_modes']} or None")
         self.patrol = patrol
@@ -213,6 +218,7 @@ class AASLEnv(gym.Env):
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
         self.prior_mean, self.prior_covariance = information_prior(cfg)
         self.surface_depth = cfg.receiver.surface_depth if cfg.receiver.kind == "surface" else None
+        self.planner = GreedyPlanner(cfg) if patrol == "greedy" else None
         self._renderer = None
         self._time = 0.0
 
@@ -247,8 +253,12 @@ class AASLEnv(gym.Env):
 
     def _command(self, action: np.ndarray) -> np.ndarray:
         command = action * self.config.receiver.max_speed
+        if self.planner is not None and self.tracker.initialized:
+            # The greedy planner from the env's own information and estimate (what the robot knows).
+            return command + self.planner.command(self.information.covariance, self.tracker.position, self.tracker.velocity, self.reported_position)
         if self.patrol is not None:
-            command = command + patrol_command(self.patrol, self._time, self.reported_position, self.config.patrol, self.patrol_geometry)
+            pattern = "helix" if self.patrol == "greedy" else self.patrol  # the greedy flies the helix until it has an estimate
+            command = command + patrol_command(pattern, self._time, self.reported_position, self.config.patrol, self.patrol_geometry)
         return command
 
     def step(self, action):

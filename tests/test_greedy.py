@@ -8,7 +8,7 @@ from aasl_gym.env import AASLEnv
 from aasl_gym.fisher import position_information_logdet, updated_covariance
 from aasl_gym.measurements import expected_noise_covariance, navigation_covariance
 from agents import make_policy
-from agents.greedy import GreedyInformationPolicy, candidate_directions
+from aasl_gym.planning import GreedyPlanner, candidate_directions
 
 
 def test_expected_noise_is_what_the_front_end_tells_the_filter():
@@ -43,22 +43,22 @@ def test_scores_are_the_information_after_the_horizon():
     """The planner's score for a command equals an independent step-by-step recursion along that
     command's straight path (here: the first candidate, five steps)."""
     config = EnvConfig().replace(measurement={"mode": "geometric"})
-    policy = GreedyInformationPolicy(config, horizon=1.0)
-    seen = {"receiver": np.array([15.0, 0.0, -7.0]), "estimate": np.array([3.0, -4.0, -10.0]), "estimate_velocity": np.array([0.2, 0.1, 0.0])}
-    policy.information.reset(np.diag([4.0, 4, 4, 0.5, 0.5, 0.5, 1.0, 1e-3]))
-    scores = policy.scores(seen)
+    planner = GreedyPlanner(config, horizon=1.0)
+    receiver, estimate, velocity = np.array([15.0, 0.0, -7.0]), np.array([3.0, -4.0, -10.0]), np.array([0.2, 0.1, 0.0])
+    start = np.diag([4.0, 4, 4, 0.5, 0.5, 0.5, 1.0, 1e-3])
+    scores = planner.scores(start, estimate, velocity, receiver)
     from aasl_gym.fisher import cv_transition_matrix, measurement_jacobian
 
-    command = policy.commands[0]
-    covariance = policy.information.covariance
     f = cv_transition_matrix(config.dt)
-    for k in range(1, 6):
-        receiver = seen["receiver"] + command * k * config.dt
-        source = seen["estimate"] + seen["estimate_velocity"] * k * config.dt
-        jacobian = measurement_jacobian(source, seen["estimate_velocity"], receiver, command, policy.fixed)
-        noise = expected_noise_covariance(config, source, receiver)
-        covariance = updated_covariance(f @ covariance @ f.T + policy.process_noise, jacobian, noise)
-    assert scores[0] == pytest.approx(float(position_information_logdet(covariance)), rel=1e-9)
+    for index in (0, 13, len(planner.commands) - 1):  # a diagonal, a straight and the zero command
+        command, covariance = planner.commands[index], start
+        for k in range(1, 6):
+            at = receiver + command * k * config.dt
+            source = estimate + velocity * k * config.dt
+            jacobian = measurement_jacobian(source, velocity, at, command, planner.fixed)
+            covariance = updated_covariance(f @ covariance @ f.T + planner.process_noise, jacobian, expected_noise_covariance(config, source, at))
+        assert scores[index] == pytest.approx(float(position_information_logdet(covariance)), rel=1e-9)
+    assert np.all(planner.command(start, estimate, velocity, receiver) == planner.commands[np.argmax(scores)])
 
 
 def test_greedy_gathers_more_information_than_random_on_a_fixed_seed():
