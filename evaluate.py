@@ -24,9 +24,9 @@ import numpy as np
 from aasl_gym.config import INITIALIZERS, MEASUREMENT_MODES, MULTIPATH_MODELS, ConfigError, EnvConfig, load_config, to_dict
 from aasl_gym.io import atomic_write, atomic_write_json, atomic_write_text
 from aasl_gym.metrics import SUCCESS_THRESHOLDS
+from agents import POLICIES as SCRIPTED_POLICIES  # what agents.make_policy builds by name
 
 MOTIONS = ("static", "cv", "ca", "ctrv", "mixed")
-SCRIPTED_POLICIES = ("helix", "spiral", "circle", "lawnmower", "greedy", "random")  # agents.make_policy names
 FILTER_CHOICES = ("cv", "ca", "ctrv", "matched")
 MATCHED_FILTER = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv", "mixed": "cv"}
 
@@ -45,7 +45,7 @@ class Job:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--policies", nargs="+", default=["helix", "spiral", "greedy"], help="helix spiral circle lawnmower greedy random, or ALGO:PATH")
+    parser.add_argument("--policies", nargs="+", default=["helix", "spiral", "greedy"], help=f"{' '.join(SCRIPTED_POLICIES)}, or ALGO:PATH")
     parser.add_argument("--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=MOTIONS)
     parser.add_argument("--initializers", nargs="+", default=["lcmap"], choices=INITIALIZERS)
     parser.add_argument("--episodes", type=int, default=10, help="episodes per combination (seeds S .. S+N-1)")
