@@ -109,8 +109,8 @@ class AASLEnv(gym.Env):
     ``AASL-v0`` it is the command itself; in the patrol variants (``AASL-Helix-v0``, ``-Spiral-``,
     ``-Circle-``, ``-Lawnmower-``) it is a residual added to the pattern's command, so a zero action
     flies the pure scripted patrol; in ``AASL-Greedy-v0`` it is a residual on the information-greedy
-    planner's command (``aasl_gym.planning``, from the env's information and estimate; the helix until
-    the filter starts). The command's norm is clipped to the speed limit; a surface vessel
+    planner's command (``aasl_gym.planning``, from the estimate; the helix until the filter starts), so
+    a zero action flies what the ``greedy`` policy flies. The command's norm is clipped to the speed limit; a surface vessel
     ignores z. Finite actions outside the box are clipped to it; NaN or infinite actions raise
     ``ValueError``. The robot never leaves the water column (``receiver.min_depth``,
     ``bed_clearance``), its region (``receiver.region_radius``) or enters the keep-out sphere
@@ -238,6 +238,8 @@ class AASLEnv(gym.Env):
         self.sensor.reset(rng)
         self.tracker.reset()
         self.information.reset(self.prior_covariance)
+        if self.planner is not None:
+            self.planner.reset()
         self._time = 0.0
         self._steps = 0
         self._fim_logdet = self.information.logdet
@@ -253,9 +255,8 @@ class AASLEnv(gym.Env):
 
     def _command(self, action: np.ndarray) -> np.ndarray:
         command = action * self.config.receiver.max_speed
-        if self.planner is not None and self.tracker.initialized:
-            # The greedy planner from the env's own information and estimate (what the robot knows).
-            return command + self.planner.command(self.information.covariance, self.tracker.position, self.tracker.velocity, self.reported_position)
+        if self.planner is not None and self.tracker.initialized:  # from the estimate: what the robot knows
+            return command + self.planner.command(self.tracker.position, self.tracker.velocity, self.reported_position)
         if self.patrol is not None:
             pattern = "helix" if self.patrol == "greedy" else self.patrol  # the greedy flies the helix until it has an estimate
             command = command + patrol_command(pattern, self._time, self.reported_position, self.config.patrol, self.patrol_geometry)
@@ -294,6 +295,8 @@ class AASLEnv(gym.Env):
         linearization = np.concatenate([estimate, estimate_velocity]) if out.initialized else self.prior_mean[:6]
         jacobian = measurement_jacobian(linearization[:3], linearization[3:], self.reported_position, self.reported_velocity, self.fixed)
         fim_logdet = self.information.step(dt, jacobian, noise)
+        if self.planner is not None:
+            self.planner.observe(out.initialized, estimate, estimate_velocity, self.reported_position, self.reported_velocity)
         error = float(np.linalg.norm(estimate - self.source.position)) if out.initialized else math.nan
         self._latest[:2] = z
         self._latest[2:] = out.innovation / out.innovation_sd if np.all(np.isfinite(out.innovation)) else 0.0

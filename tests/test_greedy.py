@@ -58,7 +58,8 @@ def test_scores_are_the_information_after_the_horizon():
             jacobian = measurement_jacobian(source, velocity, at, command, planner.fixed)
             covariance = updated_covariance(f @ covariance @ f.T + planner.process_noise, jacobian, expected_noise_covariance(config, source, at))
         assert scores[index] == pytest.approx(float(position_information_logdet(covariance)), rel=1e-9)
-    assert np.all(planner.command(start, estimate, velocity, receiver) == planner.commands[np.argmax(scores)])
+    planner.information.reset(start)
+    assert np.all(planner.command(estimate, velocity, receiver) == planner.commands[np.argmax(scores)])
 
 
 def test_greedy_gathers_more_information_than_random_on_a_fixed_seed():
@@ -76,3 +77,22 @@ def test_greedy_gathers_more_information_than_random_on_a_fixed_seed():
             done = terminated or truncated
         final[name] = info["fim_logdet"]
     assert final["greedy"] > final["random"] + 1.0  # nats: e times more information at least
+
+
+def test_greedy_env_with_zero_action_flies_the_greedy_policy():
+    """AASL-Greedy-v0's planner (inside the env, from the tracker's estimate) and the obs-only greedy
+    policy on AASL-v0 carry the same information and choose the same commands: same seed, same path."""
+    import gymnasium as gym
+
+    config = {"world": {"reflections": False}, "filter": {"multipath": "none"}}
+    residual = gym.make("AASL-Greedy-v0", config=config, source_motion="cv").unwrapped
+    plain = AASLEnv(config, source_motion="cv")
+    policy = make_policy("greedy", plain.config)
+    residual.reset(seed=7)
+    obs, _ = plain.reset(seed=7)
+    for _ in range(60):
+        *_, info_residual = residual.step(np.zeros(3))
+        action, _ = policy.predict(obs)
+        obs, *_, info_plain = plain.step(action)
+        np.testing.assert_allclose(info_residual["receiver_position"], info_plain["receiver_position"], atol=1e-4)
+    assert info_plain["initialized"]
