@@ -14,7 +14,7 @@ seeds 5000-5005 (free field, signal mode) ``horizon=0.2`` converged on 6/6 stati
 but 5/6 CV sources (one after 117 s); ``horizon=3`` on 6/6 and 6/6 (10.3 s and 10.1 s).
 
 Used by the ``greedy`` policy (``agents/greedy.py``, from observations alone) and by ``AASL-Greedy-v0``
-(the env's own information and estimate; the action is a residual on the planner's command).
+(from the env's estimate; the action is a residual on the planner's command); both fly the same path.
 """
 
 from __future__ import annotations
