@@ -87,17 +87,12 @@ def _model(spec: str):
 def run_episode(job: Job) -> dict[str, Any]:
     """One episode on ``AASL-v0``; returns its results row."""
     from agents import make_policy
+    from agents.rollout import play_episode
     from aasl_gym.env import AASLEnv
 
     env = AASLEnv(job.config, source_motion=job.motion, initializer=job.initializer, measurement=job.measurement, filter_model=job.filter_model)
     policy = _model(job.policy) if ":" in job.policy else make_policy(job.policy, env.config, seed=job.seed)
-    obs, _ = env.reset(seed=job.seed)
-    state, episode_start, done = None, np.ones(1, dtype=bool), False
-    while not done:
-        action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=True)
-        episode_start = np.zeros(1, dtype=bool)
-        obs, _, terminated, truncated, info = env.step(action)
-        done = terminated or truncated
+    info = play_episode(env, policy, job.seed)
     env.close()
 
     def number(value) -> float | None:

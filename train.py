@@ -106,7 +106,7 @@ def main(argv=None) -> int:
         return 2
     eval_seeds = list(range(eval_seed, eval_seed + eval_episodes))
     callbacks = make_callbacks(out, args.algo, lambda: gym.make(env_id, **env_kwargs), eval_seeds, eval_every,
-                               checkpoint_every, n_envs, report=print)
+                               checkpoint_every, report=print)
     print(f"training {args.algo} on {args.env} for {timesteps:,} steps with {n_envs} envs -> {out}; "
           f"evaluating every {eval_every:,} steps on seeds {eval_seeds[0]}-{eval_seeds[-1]}")
     model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=True)

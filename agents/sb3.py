@@ -16,6 +16,7 @@ from typing import Any, Callable
 import numpy as np
 
 from aasl_gym.io import atomic_write
+from agents.rollout import play_episode
 
 logger = logging.getLogger(__name__)
 
@@ -97,11 +98,11 @@ def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
 
 
 def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds: list[int], eval_every: int,
-                   checkpoint_every: int, n_envs: int, report: Callable[[str], None]):
+                   checkpoint_every: int, report: Callable[[str], None]):
     """The training callbacks: evaluation on fixed seeds (keeping the best model), atomic checkpoints, and
     the training episodes' metrics in the log.
 
-    ``eval_every`` and ``checkpoint_every`` count environment steps over all ``n_envs`` envs.
+    ``eval_every`` and ``checkpoint_every`` count environment steps over all the training envs.
     ``report`` receives one line per evaluation (the CLI prints it).
     """
     from stable_baselines3.common.callbacks import BaseCallback
@@ -119,19 +120,12 @@ def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds
             if self.num_timesteps < self.next_at:
                 return True
             self.next_at += eval_every
-            normalizer = self.model.get_vec_normalize_env()
-            policy = LoadedPolicy(self.model, normalizer)
+            policy = LoadedPolicy(self.model, self.model.get_vec_normalize_env())
             returns, successes, times = [], [], []
             for seed in eval_seeds:
-                obs, _ = self.env.reset(seed=seed)
-                state, start, done, total = None, np.ones(1, dtype=bool), False, 0.0
-                while not done:
-                    action, state = policy.predict(obs[None], state=state, episode_start=start, deterministic=True)
-                    start = np.zeros(1, dtype=bool)
-                    obs, reward, terminated, truncated, info = self.env.step(action[0])
-                    total += reward
-                    done = terminated or truncated
-                returns.append(total)
+                rewards = []
+                info = play_episode(self.env, policy, seed, on_step=lambda reward, _: rewards.append(reward))
+                returns.append(sum(rewards))
                 successes.append(bool(info["success"]["1.0"]))
                 times.append(float(info["convergence_time"]))
             mean_return = float(np.mean(returns))

@@ -21,11 +21,10 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
-import aasl_gym  # noqa: E402,F401  (registers the ids)
 from aasl_gym import acoustics  # noqa: E402
+from bench_speed import env_step_rates  # noqa: E402  (run from the repository root as a script)
 
 FIXED = np.array([0.0, 0.0, -0.96])
 SOURCE, SOURCE_VELOCITY = np.array([8.0, -6.0, -12.0]), np.array([0.5, 0.2, 0.0])
@@ -89,21 +88,6 @@ def main() -> None:
                  for _ in range(max(1, args.repeats // 3))]
         overall, typical = (statistics.median(rate[i] for rate in rates) for i in (0, 1))
         print(f"  {label}: {overall:,.0f} | {typical:,.0f}   [goal >= 1,000 on the fast path]")
-
-
-def env_step_rates(env_id: str, episodes: int, **kwargs) -> tuple[float, float]:
-    """Steps per second over whole episodes (zero action), and one over the median step's duration."""
-    env = gym.make(env_id, **kwargs)
-    durations = []
-    for seed in range(episodes):
-        env.reset(seed=seed)
-        done = False
-        while not done:
-            start = time.perf_counter()
-            *_, terminated, truncated, _ = env.step(np.zeros(3))
-            durations.append(time.perf_counter() - start)
-            done = terminated or truncated
-    return len(durations) / sum(durations), 1.0 / statistics.median(durations)
 
 
 if __name__ == "__main__":

@@ -21,22 +21,21 @@ sys.path.insert(0, str(ROOT))  # agents/ lives at the repository root
 from aasl_gym.env import AASLEnv  # noqa: E402
 from aasl_gym.rewards import TERMS  # noqa: E402
 from agents import make_policy  # noqa: E402
+from agents.rollout import play_episode  # noqa: E402
+from evaluate import MATCHED_FILTER  # noqa: E402  (source motion -> the filter model matched to it)
 
-MOTIONS = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv"}  # source motion -> filter model
+MOTIONS = ("static", "cv", "ca", "ctrv")
 
 
 def episode_sums(policy_name: str, motion: str, seed: int) -> dict[str, float]:
-    env = AASLEnv(ROOT / "configs" / "initializer_study.yaml", source_motion=motion, measurement="signal", filter_model=MOTIONS[motion])
-    policy = make_policy(policy_name, env.config, seed=seed)
-    obs, _ = env.reset(seed=seed)
+    env = AASLEnv(ROOT / "configs" / "initializer_study.yaml", source_motion=motion, measurement="signal", filter_model=MATCHED_FILTER[motion])
     sums = dict.fromkeys(TERMS, 0.0)
-    done = False
-    while not done:
-        action, _ = policy.predict(obs)
-        obs, _, terminated, truncated, info = env.step(action)
+
+    def add(_, info):
         for name, value in info["reward_terms"].items():
             sums[name] += value
-        done = terminated or truncated
+
+    play_episode(env, make_policy(policy_name, env.config, seed=seed), seed, on_step=add)
     return sums
 
 

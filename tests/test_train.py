@@ -88,7 +88,7 @@ def test_training_episodes_log_their_metrics(tmp_path):
         def record(self, key, value):
             recorded[key] = value
 
-    metrics = make_callbacks(tmp_path, "ppo", lambda: None, [0], 10, 10, 1, print)[2]
+    metrics = make_callbacks(tmp_path, "ppo", lambda: None, [0], 10, 10, print)[2]
     metrics.model = type("Model", (), {"logger": Recorder()})()  # the callback logs through its model's logger
     ends = [{"convergence_time": np.array(30.0), "success": {"1.0": True}, "final_error": np.array(0.4)},
             {"convergence_time": np.array(np.nan), "success": {"1.0": False}, "final_error": np.array(2.0)}]
