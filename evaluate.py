@@ -85,13 +85,20 @@ def _model(spec: str):
 
 
 def run_episode(job: Job) -> dict[str, Any]:
-    """One episode on ``AASL-v0``; returns its results row."""
+    """One episode; returns its results row. Scripted policies fly ``AASL-v0``; a trained model flies
+    the env it was trained on (a residual model needs its patrol's command), with the same source,
+    noise and metrics for the same seed."""
     from agents import make_policy
     from agents.rollout import play_episode
     from aasl_gym.env import AASLEnv
+    from aasl_gym.registration import ENV_IDS
 
-    env = AASLEnv(job.config, source_motion=job.motion, initializer=job.initializer, measurement=job.measurement, filter_model=job.filter_model)
-    policy = _model(job.policy) if ":" in job.policy else make_policy(job.policy, env.config, seed=job.seed)
+    policy = _model(job.policy) if ":" in job.policy else None
+    patrol = ENV_IDS[policy.env_id] if policy is not None else None
+    env = AASLEnv(job.config, source_motion=job.motion, initializer=job.initializer, measurement=job.measurement,
+                  filter_model=job.filter_model, patrol=patrol)
+    if policy is None:
+        policy = make_policy(job.policy, env.config, seed=job.seed)
     info = play_episode(env, policy, job.seed)
     env.close()
 

@@ -1,6 +1,6 @@
 """Train a Stable-Baselines3 policy on an AASL-Gym environment.
 
-    python train.py --algo ppo [--env AASL-v0] [--config FILE] [--timesteps N] [--n-envs K] [--seed S] [--out DIR]
+    python train.py --algo ppo [--env ID] [--config FILE] [--timesteps N] [--n-envs K] [--seed S] [--out DIR]
 
 Writes DIR/model.zip (with DIR/model.vecnormalize.pkl when the schedule normalizes observations or
 rewards), DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints under
@@ -30,7 +30,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=ALGORITHMS, default="ppo")
-    parser.add_argument("--env", choices=sorted(ENV_IDS), default="AASL-v0")
+    parser.add_argument("--env", choices=sorted(ENV_IDS), default=None, help="default: schedule.env in --hyperparameters")
     parser.add_argument("--config", type=Path, default=ROOT / "configs" / "default.yaml", help="env config (YAML)")
     parser.add_argument("--hyperparameters", type=Path, default=ROOT / "configs" / "training.yaml")
     parser.add_argument("--timesteps", type=int, default=None, help="default: the schedule in --hyperparameters")
@@ -75,6 +75,10 @@ def main(argv=None) -> int:
         print(f"error: --hyperparameters: schedule needs integer timesteps, n_envs, eval_every, eval_episodes, eval_seed "
               f"and checkpoint_every ({type(exc).__name__}: {exc})", file=sys.stderr)
         return 2
+    env_name = args.env or schedule.get("env", "AASL-v0")
+    if env_name not in ENV_IDS:
+        print(f"error: --hyperparameters: schedule.env {env_name!r} is not one of {sorted(ENV_IDS)}", file=sys.stderr)
+        return 2
     out = args.out or ROOT / "runs" / f"{args.algo}-{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
 
@@ -84,7 +88,7 @@ def main(argv=None) -> int:
 
     from agents.sb3 import algorithm_class, make_callbacks, save_model
 
-    env_id = f"aasl_gym:{args.env}"
+    env_id = f"aasl_gym:{env_name}"
     env_kwargs = {"config": config}
     vec_cls = SubprocVecEnv if n_envs > 1 else None
     envs = make_vec_env(env_id, n_envs=n_envs, seed=args.seed, env_kwargs=env_kwargs, vec_env_cls=vec_cls)
@@ -104,15 +108,16 @@ def main(argv=None) -> int:
     except TypeError as exc:
         print(f"error: --hyperparameters: section '{args.algo}' has a keyword {cls.__name__} does not take ({exc})", file=sys.stderr)
         return 2
+    model.aasl_env_id = env_name  # saved with every checkpoint, so evaluation runs the policy in its env
     eval_seeds = list(range(eval_seed, eval_seed + eval_episodes))
     callbacks = make_callbacks(out, args.algo, lambda: gym.make(env_id, **env_kwargs), eval_seeds, eval_every,
-                               checkpoint_every, report=print)
-    print(f"training {args.algo} on {args.env} for {timesteps:,} steps with {n_envs} envs -> {out}; "
+                               checkpoint_every, report=lambda line: print(line, flush=True))
+    print(f"training {args.algo} on {env_name} for {timesteps:,} steps with {n_envs} envs -> {out}; "
           f"evaluating every {eval_every:,} steps on seeds {eval_seeds[0]}-{eval_seeds[-1]}")
     model.learn(total_timesteps=timesteps, callback=callbacks, progress_bar=True)
     save_model(model, out / "model.zip")
     save_config(config, out / "config.yaml")
-    atomic_write_text(out / "hyperparameters.yaml", yaml.safe_dump({"algo": args.algo, "env": args.env, "seed": args.seed,
+    atomic_write_text(out / "hyperparameters.yaml", yaml.safe_dump({"algo": args.algo, "env": env_name, "seed": args.seed,
                                                                       "timesteps": timesteps, "n_envs": n_envs,
                                                                       "schedule": schedule, args.algo: hyper[args.algo]}))
     envs.close()

@@ -2,7 +2,10 @@
 
 A saved policy is ``NAME.zip`` (the SB3 model) and, when training normalized observations or rewards,
 ``NAME.vecnormalize.pkl`` beside it (the running statistics); :func:`load_model` picks both up, so a
-loaded policy sees observations exactly as it did in training. Both are written atomically.
+loaded policy sees observations exactly as it did in training. Both are written atomically. The model
+also carries the id of the env it was trained on (``aasl_env_id``; SB3 saves a model's attributes with
+it), because a policy trained on ``AASL-Greedy-v0`` outputs a residual on the planner's command and
+must be run in that env: :attr:`LoadedPolicy.env_id` tells the evaluation which.
 """
 
 from __future__ import annotations
@@ -55,11 +58,13 @@ def save_model(model, path: str | Path) -> Path:
 
 
 class LoadedPolicy:
-    """A trained model with the observation normalization it was trained with, behind ``predict``."""
+    """A trained model with the observation normalization it was trained with, behind ``predict``;
+    ``env_id`` is the env it was trained on (``AASL-v0`` for models saved without one)."""
 
     def __init__(self, model, normalizer=None):
         self.model = model
         self.normalizer = normalizer  # a VecNormalize without its env, or None
+        self.env_id = getattr(model, "aasl_env_id", "AASL-v0")
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         if self.normalizer is not None:

@@ -98,3 +98,44 @@ def test_training_episodes_log_their_metrics(tmp_path):
     metrics._on_step()
     metrics._on_rollout_end()
     assert recorded == {"episode/success_1m": 0.5, "episode/final_error": 1.2, "episode/convergence_time": 30.0}
+
+
+def test_a_residual_model_is_evaluated_in_the_env_it_was_trained_on(tiny, tmp_path):
+    """A model trained on AASL-Greedy-v0 outputs a residual on the planner's command. With its action
+    head zeroed it must fly exactly the greedy policy's episode - which holds only if evaluate.py runs it
+    in AASL-Greedy-v0, on the same source (to float32 rounding: the greedy policy reads the estimate
+    from the observation)."""
+    import json
+
+    import torch
+
+    config, hyper = tiny
+    out = tmp_path / "run"
+    assert train.main(["--env", "AASL-Greedy-v0", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
+    policy = load_model(f"ppo:{out / 'model.zip'}")
+    assert policy.env_id == "AASL-Greedy-v0"
+    with torch.no_grad():
+        policy.model.policy.action_net.weight.zero_()
+        policy.model.policy.action_net.bias.zero_()
+    policy.model.save(out / "zero.zip")
+    assert load_model(f"ppo:{out / 'zero.zip'}").env_id == "AASL-Greedy-v0"
+
+    report = tmp_path / "eval"
+    assert evaluate.main(["--policies", "greedy", f"ppo:{out / 'zero.zip'}", "--motions", "cv", "--episodes", "1", "--seed", "3",
+                          "--config", str(config), "--no-plots", "--out", str(report)]) == 0
+    greedy, zero = sorted(json.loads((report / "results.json").read_text())["episodes"], key=lambda row: row["policy"] != "greedy")
+    assert greedy["policy"] == "greedy" and zero["policy"].endswith("zero.zip")
+    for key in ("convergence_time", "rmse", "final_error", "time_to_first_estimate"):
+        assert zero[key] == pytest.approx(greedy[key], rel=1e-4), key
+
+
+def test_the_shipped_default_policy_loads_with_its_statistics_and_env():
+    """models/ppo_default.zip is what `evaluate.py --policies helix ppo:models/ppo_default.zip` runs."""
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[1] / "models" / "ppo_default.zip"
+    policy = load_model(f"ppo:{shipped}")
+    assert policy.env_id == "AASL-Greedy-v0"
+    assert policy.normalizer is not None and not policy.normalizer.training
+    action, _ = policy.predict(np.zeros(21, dtype=np.float32))
+    assert action.shape == (3,) and np.all(np.isfinite(action))
