@@ -1,5 +1,8 @@
 """Compare patrol policies and initializers on the same seeds; write report.md, results.json and plots.
 
+Each finished episode is also appended to OUT/episodes.jsonl; ``--resume`` continues an interrupted
+run from it.
+
 Every policy x initializer x motion combination runs the episodes with seeds S, S+1, ..., so the
 comparisons are paired. Example (the reference paper's initializer study):
 
@@ -10,6 +13,7 @@ comparisons are paired. Example (the reference paper's initializer study):
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import shlex
 import sys
@@ -60,6 +64,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, default=Path("results/evaluation"))
     parser.add_argument("--no-plots", action="store_true")
     parser.add_argument("--trajectories", type=int, default=2, help="episodes per policy and motion drawn in top and depth views")
+    parser.add_argument("--resume", action="store_true",
+                        help="reuse the episodes already in OUT/episodes.jsonl (an interrupted run with the same config; "
+                             "models are trusted to be unchanged at their paths)")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
@@ -328,6 +335,34 @@ def build_jobs(args: argparse.Namespace, config: EnvConfig) -> list[Job]:
     return jobs
 
 
+def episode_key(job: Job) -> tuple:
+    return (job.policy, job.initializer, job.motion, job.measurement, job.seed, job.filter_model)
+
+
+def read_episode_log(path: Path, header: dict) -> dict[tuple, dict]:
+    """The rows of an earlier run's ``episodes.jsonl`` by episode key; a config other than ``header``'s
+    is an error. A torn last line (the run killed mid-write) is skipped: that episode runs again."""
+    if not path.is_file():
+        return {}
+    lines = path.read_text().splitlines()
+    try:
+        written = json.loads(lines[0])["config"]
+    except (IndexError, KeyError, TypeError, json.JSONDecodeError):
+        raise ConfigError(f"--resume: {path} does not start with a config line; run without --resume or with another --out") from None
+    if written != header["config"]:
+        sections = sorted(k for k in set(written) | set(header["config"]) if written.get(k) != header["config"].get(k))
+        raise ConfigError(f"--resume: {path} was written with another config (sections {sections} differ); "
+                          "run without --resume or with another --out")
+    done = {}
+    for line in lines[1:]:
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        done[tuple(entry["key"])] = entry["row"]
+    return done
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from tqdm import tqdm
@@ -354,12 +389,34 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     command = "python evaluate.py " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
-    print(f"{len(jobs)} episodes: {len(args.policies)} policies x {len(args.initializers)} initializers x {len(args.motions)} motions x {args.episodes} seeds")
-    if args.workers > 1:
-        with ProcessPoolExecutor(args.workers) as pool:
-            rows = list(tqdm(pool.map(run_episode, jobs, chunksize=4), total=len(jobs), desc="episodes", unit="ep"))
-    else:
-        rows = [run_episode(job) for job in tqdm(jobs, desc="episodes", unit="ep")]
+    args.out.mkdir(parents=True, exist_ok=True)
+    # Every finished episode is appended to episodes.jsonl at once, so a long evaluation that is
+    # interrupted loses nothing: --resume runs only what is missing.
+    log_path = args.out / "episodes.jsonl"
+    header = {"config": json.loads(json.dumps(jobs[0].config))}
+    try:
+        done = read_episode_log(log_path, header) if args.resume else {}
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    todo = [job for job in jobs if episode_key(job) not in done]
+    if not done:
+        atomic_write_text(log_path, json.dumps(header) + "\n")
+    print(f"{len(jobs)} episodes: {len(args.policies)} policies x {len(args.initializers)} initializers x {len(args.motions)} motions x {args.episodes} seeds"
+          + (f" ({len(jobs) - len(todo)} from {log_path})" if done else ""))
+    with open(log_path, "a") as log, tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="episodes", unit="ep") as progress:
+        pool = ProcessPoolExecutor(args.workers) if args.workers > 1 and todo else None
+        try:
+            finished = pool.map(run_episode, todo, chunksize=4) if pool else map(run_episode, todo)
+            for job, row in zip(todo, finished):
+                log.write(json.dumps({"key": episode_key(job), "row": row}) + "\n")
+                log.flush()
+                done[episode_key(job)] = row
+                progress.update()
+        finally:
+            if pool:
+                pool.shutdown(cancel_futures=True)
+    rows = [done[episode_key(job)] for job in jobs]
     trajectories = [(row["policy"], row["motion"], row["seed"], row.pop("trajectory")) for row in rows if "trajectory" in row]
     summary = summarize(rows, config.episode.duration)
     comparisons = {}
@@ -369,7 +426,6 @@ def main(argv: list[str] | None = None) -> int:
     if len(args.policies) > 1:
         baseline = "helix" if "helix" in args.policies else args.policies[0]
         comparisons["policy"] = paired_comparisons(rows, config.episode.duration, "policy", baseline)
-    args.out.mkdir(parents=True, exist_ok=True)
     # The config the episodes ran with: the file's, with the command line's world, filter and measurement mode.
     effective = config.replace(world=jobs[0].config["world"], filter=jobs[0].config["filter"], measurement={"mode": jobs[0].measurement})
     plots = [] if args.no_plots else write_plots(args.out, rows, summary) + write_trajectory_plots(args.out, trajectories, effective)

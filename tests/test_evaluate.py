@@ -44,3 +44,31 @@ def test_bad_flags_are_named(capsys, tmp_path):
     corrupt.write_text("not a model")
     assert evaluate.main(["--policies", f"ppo:{corrupt}", "--out", str(tmp_path)]) == 2
     assert "not a Stable-Baselines3 model" in capsys.readouterr().err
+
+
+def test_an_interrupted_evaluation_resumes_where_it_stopped(tmp_path, monkeypatch, capsys):
+    """Kill a run after its first episode (leaving a torn line): --resume runs only the rest and writes
+    the same results as the uninterrupted run; another config is refused by name."""
+    short, other = tmp_path / "short.yaml", tmp_path / "other.yaml"
+    short.write_text("episode:\n  duration: 10.0\n")
+    other.write_text("episode:\n  duration: 12.0\n")
+    flags = ["--policies", "helix", "random", "--motions", "static", "--episodes", "2", "--no-plots",
+             "--reflections", "off", "--multipath", "none", "--config", str(short)]
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert evaluate.main(flags + ["--out", str(whole)]) == 0
+    lines = (whole / "episodes.jsonl").read_text().splitlines()
+    assert len(lines) == 1 + 4  # the config, then one line an episode
+    cut.mkdir()
+    (cut / "episodes.jsonl").write_text("\n".join(lines[:2]) + "\n" + lines[2][: len(lines[2]) // 2])
+
+    ran = []
+    run_episode = evaluate.run_episode
+    monkeypatch.setattr(evaluate, "run_episode", lambda job: ran.append((job.policy, job.seed)) or run_episode(job))
+    assert evaluate.main(flags + ["--out", str(cut), "--resume"]) == 0
+    assert len(ran) == 3  # the torn episode ran again, the complete one did not
+    episodes = [json.loads((out / "results.json").read_text())["episodes"] for out in (whole, cut)]
+    assert episodes[0] == episodes[1]
+
+    capsys.readouterr()
+    assert evaluate.main(flags[:-1] + [str(other), "--out", str(cut), "--resume"]) == 2
+    assert "--resume" in capsys.readouterr().err
