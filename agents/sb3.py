@@ -19,6 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from aasl_gym.io import atomic_write
+from aasl_gym.registration import ENV_IDS
 from agents.rollout import play_episode
 
 logger = logging.getLogger(__name__)
@@ -99,7 +100,10 @@ def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
         if not hasattr(normalizer, "normalize_obs"):
             raise ValueError(f"model {spec!r}: {stats} holds no VecNormalize statistics")
         normalizer.training = False
-    return LoadedPolicy(model, normalizer)
+    policy = LoadedPolicy(model, normalizer)
+    if policy.env_id not in ENV_IDS:
+        raise ValueError(f"model {spec!r}: trained on env {policy.env_id!r}, which is not one of {sorted(ENV_IDS)}")
+    return policy
 
 
 def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds: list[int], eval_every: int,

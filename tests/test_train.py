@@ -119,6 +119,10 @@ def test_a_residual_model_is_evaluated_in_the_env_it_was_trained_on(tiny, tmp_pa
         policy.model.policy.action_net.bias.zero_()
     policy.model.save(out / "zero.zip")
     assert load_model(f"ppo:{out / 'zero.zip'}").env_id == "AASL-Greedy-v0"
+    policy.model.aasl_env_id = "AASL-v9"
+    policy.model.save(out / "unknown.zip")
+    with pytest.raises(ValueError, match="AASL-v9"):
+        load_model(f"ppo:{out / 'unknown.zip'}")
 
     report = tmp_path / "eval"
     assert evaluate.main(["--policies", "greedy", f"ppo:{out / 'zero.zip'}", "--motions", "cv", "--episodes", "1", "--seed", "3",
