@@ -18,7 +18,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from aasl_gym.io import atomic_write
+from aasl_gym.io import atomic_write, atomic_write_text
 from aasl_gym.registration import ENV_IDS
 from agents.rollout import play_episode
 
@@ -112,7 +112,8 @@ def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds
     the training episodes' metrics in the log.
 
     ``eval_every`` and ``checkpoint_every`` count environment steps over all the training envs.
-    ``report`` receives one line per evaluation (the CLI prints it).
+    ``report`` receives one line per evaluation (the CLI prints it); the evaluations so far are also
+    rewritten to ``out/evaluations.csv`` after each one (the learning curve, with or without TensorBoard).
     """
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -124,6 +125,7 @@ def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds
             self.env = make_env()
             self.best = -np.inf
             self.next_at = eval_every
+            self.curve = ["timesteps,mean_return,success_1m,mean_convergence_time_s"]
 
         def _on_step(self) -> bool:
             if self.num_timesteps < self.next_at:
@@ -146,6 +148,9 @@ def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds
             line = (f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m {np.mean(successes):.0%}, "
                     f"mean convergence time {np.mean(converged):.1f} s" if converged else
                     f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m 0%")
+            self.curve.append(f"{self.num_timesteps},{mean_return:.4f},{np.mean(successes):.4f},"
+                              f"{np.mean(converged) if converged else float('nan'):.4f}")
+            atomic_write_text(out / "evaluations.csv", "\n".join(self.curve) + "\n")
             if mean_return > self.best:
                 self.best = mean_return
                 save_model(self.model, out / "best" / "model.zip")

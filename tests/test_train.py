@@ -33,6 +33,8 @@ def test_tiny_ppo_run_writes_a_loadable_model_that_evaluate_runs(tiny, tmp_path,
     for name in ("model.zip", "model.vecnormalize.pkl", "config.yaml", "hyperparameters.yaml", "best/model.zip"):
         assert (out / name).stat().st_size > 0
     assert sorted(p.name for p in (out / "checkpoints").glob("*.zip")) == ["ppo_128.zip", "ppo_256.zip"]
+    curve = (out / "evaluations.csv").read_text().splitlines()
+    assert curve[0].startswith("timesteps,mean_return") and [line.split(",")[0] for line in curve[1:]] == ["128", "256"]
     assert not list(out.rglob(".*"))  # no temporary files left behind
 
     policy = load_model(f"ppo:{out / 'model.zip'}")
