@@ -139,17 +139,17 @@ def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds
                 returns.append(sum(rewards))
                 successes.append(bool(info["success"]["1.0"]))
                 times.append(float(info["convergence_time"]))
-            mean_return = float(np.mean(returns))
+            mean_return, success = float(np.mean(returns)), float(np.mean(successes))
             converged = [t for t in times if np.isfinite(t)]
+            mean_time = float(np.mean(converged)) if converged else float("nan")
             self.logger.record("eval/mean_return", mean_return)
-            self.logger.record("eval/success_1m", float(np.mean(successes)))
+            self.logger.record("eval/success_1m", success)
             if converged:
-                self.logger.record("eval/mean_convergence_time", float(np.mean(converged)))
-            line = (f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m {np.mean(successes):.0%}, "
-                    f"mean convergence time {np.mean(converged):.1f} s" if converged else
-                    f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m 0%")
-            self.curve.append(f"{self.num_timesteps},{mean_return:.4f},{np.mean(successes):.4f},"
-                              f"{np.mean(converged) if converged else float('nan'):.4f}")
+                self.logger.record("eval/mean_convergence_time", mean_time)
+            line = f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m {success:.0%}"
+            if converged:
+                line += f", mean convergence time {mean_time:.1f} s"
+            self.curve.append(f"{self.num_timesteps},{mean_return:.4f},{success:.4f},{mean_time:.4f}")
             atomic_write_text(out / "evaluations.csv", "\n".join(self.curve) + "\n")
             if mean_return > self.best:
                 self.best = mean_return
