@@ -123,11 +123,12 @@ def _multipath_phase(
     source_velocity: np.ndarray,
     receiver: np.ndarray,
     receiver_velocity: np.ndarray,
-    water_depth: float,
+    images: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
     gains: tuple[float, float],
     wavenumber: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Phase (rad) of the multipath factor M = S / S_direct at one receiver, and its rate (rad/s).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Phase (rad) of the multipath factor M = S / S_direct at one receiver and its rate (rad/s), with
+    the direct path's range (m) and range rate (m/s); ``images`` from :func:`image_sources`.
 
     S = sum_k a_k / r_k exp(-j k r_k) over the direct path (a = 1) and the images, so
     M = 1 + sum_images a_i (d / r_i) exp(-j k (r_i - d)).
@@ -136,14 +137,14 @@ def _multipath_phase(
     direct_rate = range_rate(unit, source_velocity, receiver_velocity)
     factor = np.ones(np.shape(direct), dtype=complex)
     factor_rate = np.zeros(np.shape(direct), dtype=complex)
-    for (image, image_velocity), gain in zip(image_sources(source, source_velocity, water_depth), gains):
+    for (image, image_velocity), gain in zip(images, gains):
         image_range, image_unit = ranges(image, receiver)
         image_rate = range_rate(image_unit, image_velocity, receiver_velocity)
         term = gain * direct / image_range * np.exp(-1j * wavenumber * (image_range - direct))
         factor = factor + term
         log_rate = direct_rate / direct - image_rate / image_range - 1j * wavenumber * (image_rate - direct_rate)
         factor_rate = factor_rate + term * log_rate
-    return np.angle(factor), np.imag(factor_rate / factor)
+    return np.angle(factor), np.imag(factor_rate / factor), direct, direct_rate
 
 
 def phasor_multipath(
@@ -166,10 +167,13 @@ def phasor_multipath(
     apparent RRD is its exact time derivative.
     """
     gains = (surface_reflection, bed_reflection)
-    phase_m, phase_rate_m = _multipath_phase(source, source_velocity, mobile, mobile_velocity, water_depth, gains, wavenumber)
-    phase_f, phase_rate_f = _multipath_phase(source, source_velocity, fixed, ZERO3, water_depth, gains, wavenumber)
-    rd = range_difference(source, mobile, fixed) + (phase_f - phase_m) / wavenumber
-    rrd = range_rate_difference(source, source_velocity, mobile, mobile_velocity, fixed) + (phase_rate_f - phase_rate_m) / wavenumber
+    # The images and the direct ranges are shared by the two receivers' factors and the direct RD and
+    # RRD: this model runs on every LC-MAP candidate at every burst sample, where it dominates the cost.
+    images = image_sources(source, source_velocity, water_depth)
+    phase_m, phase_rate_m, range_m, range_rate_m = _multipath_phase(source, source_velocity, mobile, mobile_velocity, images, gains, wavenumber)
+    phase_f, phase_rate_f, range_f, range_rate_f = _multipath_phase(source, source_velocity, fixed, ZERO3, images, gains, wavenumber)
+    rd = (range_m - range_f) + (phase_f - phase_m) / wavenumber
+    rrd = (range_rate_m - range_rate_f) + (phase_rate_f - phase_rate_m) / wavenumber
     return rd, rrd
 
 
