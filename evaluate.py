@@ -431,9 +431,10 @@ def main(argv: list[str] | None = None) -> int:
     plots = [] if args.no_plots else write_plots(args.out, rows, summary) + write_trajectory_plots(args.out, trajectories, effective)
     atomic_write_json(args.out / "results.json", {"command": command, "config": to_dict(effective), "episodes": rows, "summary": summary, "comparisons": comparisons})
     write_report(args.out / "report.md", command, effective, summary, comparisons, plots)
-    print(f"\n{'policy':<12} {'initializer':<9} {'motion':<7} {'n':>4} {'succ@1m':>8} {'conv (s)':>9} {'RMSE med':>9}")
+    width = max(len("policy"), *(len(s["policy"]) for s in summary))  # a model's name carries its path
+    print(f"\n{'policy':<{width}} {'initializer':<11} {'motion':<7} {'n':>4} {'succ@1m':>8} {'conv (s)':>9} {'RMSE med':>9}")
     for s in summary:
-        print(f"{s['policy']:<12} {s['initializer']:<9} {s['motion']:<7} {s['n']:>4} {s['success_rate']['1.0']:>8.0%} "
+        print(f"{s['policy']:<{width}} {s['initializer']:<11} {s['motion']:<7} {s['n']:>4} {s['success_rate']['1.0']:>8.0%} "
               f"{_fmt(s['mean_convergence_time']):>9} {_fmt(s['rmse_median'], 2):>9}")
     print(f"\nwrote {args.out / 'report.md'}, {args.out / 'results.json'}" + (f" and {len(plots)} plots" if plots else ""))
     return 0
