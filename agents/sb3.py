@@ -35,7 +35,7 @@ def algorithm_class(name: str):
         try:
             from sb3_contrib import RecurrentPPO
         except ImportError as exc:
-            raise ImportError("recurrent-ppo needs sb3-contrib: pip install 'aasl-gym[extra]'") from exc
+            raise ImportError("recurrent-ppo needs sb3-contrib (a dependency of aasl-gym): pip install sb3-contrib") from exc
         return RecurrentPPO
     import stable_baselines3
 

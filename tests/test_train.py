@@ -145,3 +145,34 @@ def test_the_shipped_default_policy_loads_with_its_statistics_and_env():
     assert policy.normalizer is not None and not policy.normalizer.training
     action, _ = policy.predict(np.zeros(21, dtype=np.float32))
     assert action.shape == (3,) and np.all(np.isfinite(action))
+
+
+def test_a_recurrent_policy_trains_and_is_evaluated_with_its_memory_carried(tiny, tmp_path):
+    """recurrent-ppo (sb3-contrib) runs end to end, and an episode hands the LSTM state returned by each
+    step's prediction to the next one (reset only at the episode's start)."""
+    from agents.rollout import play_episode
+    from aasl_gym.env import AASLEnv
+    from aasl_gym.registration import ENV_IDS
+
+    config, hyper = tiny
+    schedule = {**TINY_SCHEDULE, "recurrent-ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 1, "gamma": 0.99,
+                                                   "policy_kwargs": {"lstm_hidden_size": 16}}}
+    hyper.write_text(yaml.safe_dump(schedule))
+    out = tmp_path / "run"
+    assert train.main(["--algo", "recurrent-ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
+    policy = load_model(f"recurrent-ppo:{out / 'model.zip'}")
+
+    calls = []
+
+    class Recording:
+        def predict(self, observation, state=None, episode_start=None, deterministic=True):
+            action, new_state = policy.predict(observation, state, episode_start, deterministic)
+            calls.append((state, bool(episode_start[0]), new_state))
+            return action, new_state
+
+    env = AASLEnv(str(config), patrol=ENV_IDS[policy.env_id])
+    play_episode(env, Recording(), seed=0)
+    assert calls[0][0] is None and calls[0][1]
+    assert all(not start and state is previous for (_, _, previous), (state, start, _) in zip(calls, calls[1:]))
+    hidden = np.asarray(calls[-1][2][0])
+    assert hidden.shape[-1] == 16 and np.any(hidden != 0)  # the memory holds something after an episode
