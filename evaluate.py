@@ -273,7 +273,7 @@ def write_plots(out: Path, rows: list[dict], summary: list[dict]) -> list[str]:
         ax.plot([], [], color=colour, lw=6, alpha=0.6, label=f"{policy} / {initializer}")
     ax.set_xticks(np.arange(len(motions)), motions)
     ax.set_ylabel("convergence time to 1 m (s), converged episodes")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # outside: boxes fill the axes
     ax.grid(alpha=0.3)
     names.append(save(figure, "convergence_time.png"))
 
@@ -292,7 +292,7 @@ def write_plots(out: Path, rows: list[dict], summary: list[dict]) -> list[str]:
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("success rate within the episode")
-    axes[-1].legend(fontsize=7)
+    axes[-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     names.append(save(figure, "success_vs_threshold.png"))
     return names
 
