@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import multiprocessing
 import shlex
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -405,7 +406,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(jobs)} episodes: {len(args.policies)} policies x {len(args.initializers)} initializers x {len(args.motions)} motions x {args.episodes} seeds"
           + (f" ({len(jobs) - len(todo)} from {log_path})" if done else ""))
     with open(log_path, "a") as log, tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="episodes", unit="ep") as progress:
-        pool = ProcessPoolExecutor(args.workers) if args.workers > 1 and todo else None
+        # Fresh worker processes, not forks: a fork of a parent that has run torch (the models are loaded
+        # here to check them) can hang in torch's thread pool - a recurrent policy's workers never finished.
+        pool = ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) if args.workers > 1 and todo else None
         try:
             finished = pool.map(run_episode, todo, chunksize=4) if pool else map(run_episode, todo)
             for job, row in zip(todo, finished):
