@@ -5,8 +5,8 @@
 Writes DIR/model.zip (with DIR/model.vecnormalize.pkl when the schedule normalizes observations or
 rewards), DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints under
 DIR/checkpoints/, the best model of the periodic evaluations under DIR/best/, their learning curve in
-DIR/evaluations.csv and, when TensorBoard is installed, logs under DIR/tb/. Every file is written atomically. The periodic evaluation runs the
-same seeds each time (``schedule.eval_seed`` onward), which training never uses: training env i
+DIR/evaluations.csv and, when TensorBoard is installed, logs under DIR/tb/. Every file is written
+atomically. The periodic evaluation runs the same seeds each time (``schedule.eval_seed`` onward), which training never uses: training env i
 starts from seed S + i and every later episode continues that env's generator.
 """
 
