@@ -157,12 +157,17 @@ class AASLEnv(gym.Env):
     ## Info
     Every step: ``time``, ``source_position``, ``source_velocity``, ``receiver_position``,
     ``receiver_velocity``, ``receiver_position_reported``, ``fixed_position``, ``estimate_position``,
-    ``estimate_velocity`` and ``position_error`` (NaN until initialized), ``position_covariance``
-    (3x3), ``measurement``, ``measurement_true`` (noise-free direct-path [RD, RRD]), ``snr_db`` (of the weaker
-    channel: in signal mode as the front end measures it, else from the source level, spreading and noise level), ``initialized``, ``converged`` (error below the threshold now),
-    ``reinitialized``, ``fim_logdet``, ``reward_terms``. On the last step also ``convergence_time``,
-    ``rmse``, ``final_error``, ``success`` (threshold -> bool), ``time_to_first_estimate`` and
-    ``reinitializations``. Values that can be NaN (``position_error`` and the last-step metrics) are 0-d float64 arrays, so that two infos from the same seed compare equal NaN for NaN. (Gymnasium's ``check_env`` compares infos with ``np.allclose``, for which NaN never equals NaN: run it with ``initializer.burst_duration: 0.2``, so that the filter starts on the first step, as ``tests/test_env.py`` does.)
+    ``estimate_velocity``, ``position_error`` (of that estimate) and ``position_covariance`` (3x3),
+    ``measurement``, ``measurement_true`` (noise-free direct-path [RD, RRD]), ``snr_db`` (of the weaker
+    channel: in signal mode as the front end measures it, else from the source level, spreading and
+    noise level), ``initialized``, ``converged`` (error below the threshold now), ``reinitialized``,
+    ``fim_logdet``, ``reward_terms``. Until the filter starts (``initialized`` False) the estimate is
+    the prior's - a finite mean and covariance (``aasl_gym.fisher.information_prior``) - so no value
+    is NaN and Gymnasium's ``check_env`` passes. On the last step also ``convergence_time``, ``rmse``,
+    ``final_error``, ``success`` (threshold -> bool), ``time_to_first_estimate`` and
+    ``reinitializations``; these count from the tracker's own estimate (the prior never converges and
+    is not in the RMSE), and the ones that can be NaN (``convergence_time`` when it never converged)
+    are 0-d float64 arrays, so that two infos from the same seed compare equal NaN for NaN.
 
     ## Arguments
     ``AASLEnv(config=None, patrol=None, render_mode=None, source_motion=None, measurement=None,
@@ -213,7 +218,7 @@ class AASLEnv(gym.Env):
             self.sensor = SignalSensor(cfg, period)
         else:
             self.sensor = GeometricSensor(measurement_sd, self.propagation, cfg.world.reflections, period)
-        self.tracker = SourceTracker(cfg, self.source_region, self.filter_covariance)
+        self.tracker = SourceTracker(cfg, self.source_region, self.acoustic_covariance)
         self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
         self.prior_mean, self.prior_covariance = information_prior(cfg)
@@ -284,20 +289,23 @@ class AASLEnv(gym.Env):
 
         # 2. measure, from the true geometry; navigation reports the robot's state with its error
         z = self.sensor.measure(rng, self._time, self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed, cfg.source.range_rate_bias)
-        # Signal mode: the front end says how noisy this frame is (from its SNRs); geometric: fixed R_eff.
-        noise = self.sensor.covariance + self.navigation_covariance if self.signal_mode else self.filter_covariance
+        # Signal mode: the front end says how noisy this frame is (from its SNRs); geometric: a fixed R_ac.
+        # The tracker adds the navigation term itself, from its model at each hypothesis.
+        acoustic = self.sensor.covariance if self.signal_mode else self.acoustic_covariance
+        noise = acoustic + self.navigation_covariance  # the direct path's R_eff, for the information reward
         self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, dt)
 
         # 3. estimate
-        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, rng, noise)
+        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, rng, acoustic)
         estimate = self.tracker.position
         estimate_velocity = self.tracker.velocity
-        linearization = np.concatenate([estimate, estimate_velocity]) if out.initialized else self.prior_mean[:6]
-        jacobian = measurement_jacobian(linearization[:3], linearization[3:], self.reported_position, self.reported_velocity, self.fixed)
+        jacobian = measurement_jacobian(estimate, estimate_velocity, self.reported_position, self.reported_velocity, self.fixed)
         fim_logdet = self.information.step(dt, jacobian, noise)
         if self.planner is not None:
             self.planner.observe(out.initialized, estimate, estimate_velocity, self.reported_position, self.reported_velocity)
-        error = float(np.linalg.norm(estimate - self.source.position)) if out.initialized else math.nan
+        # The metrics and rewards count from the tracker's own estimate; info reports the prior's error before it.
+        estimate_error = float(np.linalg.norm(estimate - self.source.position))
+        error = estimate_error if out.initialized else math.nan
         self._latest[:2] = z
         self._latest[2:] = out.innovation / out.innovation_sd if np.all(np.isfinite(out.innovation)) else 0.0
 
@@ -329,7 +337,7 @@ class AASLEnv(gym.Env):
             "fixed_position": self.fixed.copy(),
             "estimate_position": estimate,
             "estimate_velocity": estimate_velocity,
-            "position_error": np.array(error),
+            "position_error": estimate_error,
             "position_covariance": self.tracker.position_covariance,
             "measurement": np.asarray(z, dtype=float),
             "measurement_true": direct_measurement(self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed),

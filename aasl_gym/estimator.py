@@ -25,10 +25,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
 from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model
-from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, whitener
-from aasl_gym.measurements import Propagation, multipath_measurement
+from aasl_gym.fisher import information_prior
+from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, trajectory_whitener, whiten
+from aasl_gym.measurements import Propagation, multipath_measurement, receiver_jacobian, receiver_noise
 from aasl_gym.motion import Box
 
 logger = logging.getLogger(__name__)
@@ -56,7 +58,10 @@ class SourceTracker:
     def __init__(self, config: EnvConfig, region: Box, noise_covariance: np.ndarray):
         self.config = config
         self.region = region
-        self.noise_covariance = noise_covariance  # R_eff (or R_ac without navigation compensation)
+        self.noise_covariance = noise_covariance  # R_ac, the acoustic part of R_eff
+        receiver = config.receiver
+        compensate = config.filter.compensate_navigation
+        self.navigation_sd = (receiver.nav_position_sd, receiver.velocity_sd) if compensate else (0.0, 0.0)
         f = config.filter
         self.propagation = Propagation.from_config(config.world, config.source.frequency)
         self.model = make_motion_model(f)
@@ -64,6 +69,11 @@ class SourceTracker:
         self.initializer = make_initializer(config.initializer.name, config.initializer, region, self.model.name)
         self.reinitializer = LCMAPInitializer(config.initializer, region, self.model.name)
         self.wavelength = config.wavelength if config.source.waveform == "tone" else None
+        # The phasor model's correction RD_app - RD is a phase difference over k, defined modulo a
+        # wavelength: it jumps where a receiver's phasor sum winds round zero and swings by up to half a
+        # wavelength in one step near a null, so neither it nor the unwrapped measured track can be
+        # trusted beyond a whole period. Its RD residuals are taken modulo the wavelength (circular).
+        self.correction_period = config.wavelength if f.multipath == "phasor" else None
         self.fixed = np.asarray(config.world.fixed_position, dtype=float)
         rate = config.measurement.rate
         self.burst_length = max(1, int(round(config.initializer.burst_duration * rate)))
@@ -71,6 +81,7 @@ class SourceTracker:
         ini = config.initializer
         self.reseed_length = int(round(ini.reseed_until * rate)) + 1 if ini.reseed_interval > 0 else 0
         self.nis_length = max(1, int(round(f.divergence_window * rate)))
+        self.prior_mean, self.prior_covariance = information_prior(config)  # what is known before any measurement
         self.reset()
 
     def reset(self) -> None:
@@ -88,11 +99,24 @@ class SourceTracker:
         return multipath_measurement(self.config.filter.multipath, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
 
     def _hx(self, mobile: np.ndarray, mobile_velocity: np.ndarray):
+        """The UKF's h: under the phasor model each sigma point's multipath correction is taken within
+        half a wavelength of the central point's, so that a branch cut between them cannot pose as spread."""
         def hx(states: np.ndarray) -> np.ndarray:
             z = self.measurement_function(states[:, 0:3], states[:, 3:6], mobile, mobile_velocity, self.fixed)
+            if self.correction_period is not None:
+                direct = geometry.range_difference(states[:, 0:3], mobile, self.fixed)
+                correction = z[:, 0] - direct
+                z[:, 0] = direct + correction[0] + geometry.wrap_to_period(correction - correction[0], self.correction_period)
             return z + states[:, -2:]
 
         return hx
+
+    def residual(self, measured: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+        """z - h, with the RD part modulo the wavelength under the phasor model (see ``correction_period``)."""
+        difference = measured - predicted
+        if self.correction_period is not None:
+            difference[..., 0] = geometry.wrap_to_period(difference[..., 0], self.correction_period)
+        return difference
 
     def _burst(self, length: int) -> Burst:
         rows = list(self.history)[-length:]
@@ -102,7 +126,8 @@ class SourceTracker:
         covariances = [row[4] for row in rows]
         shared = all(c is covariances[0] for c in covariances)
         noise = covariances[0] if shared else np.mean(covariances, axis=0)
-        return Burst(times, z, positions, velocities, self.fixed, noise, self.wavelength, self.measurement_function)
+        return Burst(times, z, positions, velocities, self.fixed, noise, self.wavelength, self.measurement_function,
+                     self.correction_period, self.navigation_sd)
 
     def _reachable(self, time: float) -> Box:
         """Where the source can be at ``time``: the start region grown by the fastest plausible travel."""
@@ -155,13 +180,15 @@ class SourceTracker:
 
     def _window_chi_square(self, burst: Burst, states: np.ndarray) -> np.ndarray:
         """Chi-square of ``burst`` for model states (H, dim) given at its last time, each run back
-        along its own motion model: puts running filters and fresh candidates on one scale."""
+        along its own motion model: puts running filters and fresh candidates on one scale. Each sample
+        is weighed with the state's own R_eff there (the navigation term depends on where the source is)."""
         lags = burst.times - burst.times[-1]  # <= 0
         trajectory = np.stack([self.model.transition(states, lag) for lag in lags], axis=1)  # (H, K, dim)
+        position, velocity = trajectory[..., 0:3], trajectory[..., 3:6]
         predicted = self.measurement_function(
-            trajectory[..., 0:3], trajectory[..., 3:6], burst.receiver_positions[None], burst.receiver_velocities[None], self.fixed
+            position, velocity, burst.receiver_positions[None], burst.receiver_velocities[None], self.fixed
         ) + trajectory[..., -2:]
-        whitened = (burst.measurements[None] - predicted) @ whitener(burst).T
+        whitened = whiten(trajectory_whitener(burst, position, velocity), self.residual(burst.measurements[None], predicted))
         velocity_prior = np.sum(states[:, 3:6] ** 2, axis=1) / self.config.initializer.velocity_prior_sd**2
         return np.sum(whitened**2, axis=(1, 2)) + velocity_prior
 
@@ -202,17 +229,42 @@ class SourceTracker:
             return False
         return float(np.mean(hypothesis.nis)) > self.config.filter.divergence_nis
 
-    def _assimilate(self, hypothesis: Hypothesis, time: float, dt: float, z: np.ndarray, noise: np.ndarray, hx) -> bool:
-        """Predict and update one hypothesis with measurement noise covariance ``noise``; False if it must be dropped."""
-        ukf = hypothesis.ukf
-        try:
-            ukf.predict(dt)
-            ukf.update(z, noise, hx)
-        except np.linalg.LinAlgError:
-            return False
-        hypothesis.log_weight += ukf.log_likelihood
-        hypothesis.nis.append(ukf.nis)
-        return not (self._implausible(ukf, time) or self._inconsistent(hypothesis, time))
+    def _navigation_noise(self, means: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray) -> np.ndarray:
+        """H_r Sigma_r H_r^T (H, 2, 2) of the filter's own measurement model at each hypothesis's mean:
+        the navigation term of R_eff (the paper's general form; the direct path's is nearly diagonal)."""
+        position_sd, velocity_sd = self.navigation_sd
+        if position_sd == 0 and velocity_sd == 0:
+            return np.zeros((len(means), 2, 2))
+        jacobian = receiver_jacobian(self.measurement_function, means[:, 0:3], means[:, 3:6], mobile, mobile_velocity, self.fixed)
+        return receiver_noise(jacobian, position_sd, velocity_sd)
+
+    def _assimilate(self, dt: float, z: np.ndarray, noise: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, time: float) -> None:
+        """Predict every hypothesis, then update it with R_eff = ``noise`` + its navigation term; drop
+        those whose covariance breaks or that turn implausible or inconsistent."""
+        predicted = []
+        for hypothesis in self.bank:
+            try:
+                hypothesis.ukf.predict(dt)
+            except np.linalg.LinAlgError:
+                continue
+            predicted.append(hypothesis)
+        if not predicted:
+            self.bank = []
+            return
+        navigation = self._navigation_noise(np.array([h.ukf.x for h in predicted]), mobile, mobile_velocity)
+        hx = self._hx(mobile, mobile_velocity)
+        kept = []
+        for hypothesis, extra in zip(predicted, navigation):
+            ukf = hypothesis.ukf
+            try:
+                ukf.update(z, noise + extra, hx, self.residual)
+            except np.linalg.LinAlgError:
+                continue
+            hypothesis.log_weight += ukf.log_likelihood
+            hypothesis.nis.append(ukf.nis)
+            if not (self._implausible(ukf, time) or self._inconsistent(hypothesis, time)):
+                kept.append(hypothesis)
+        self.bank = kept
 
     def _prune(self) -> None:
         best = max(h.log_weight for h in self.bank)
@@ -224,7 +276,8 @@ class SourceTracker:
     def step(self, time: float, z: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, rng: np.random.Generator,
              noise_covariance: np.ndarray | None = None) -> TrackerOutput:
         """Assimilate one measurement ``z = [RD, RRD]`` taken at ``time`` with the reported receiver state;
-        ``noise_covariance`` is this measurement's R (the tracker's fixed one if None)."""
+        ``noise_covariance`` is this measurement's acoustic R (the tracker's fixed one if None); each
+        hypothesis adds the navigation term at its own estimate."""
         noise = self.noise_covariance if noise_covariance is None else np.asarray(noise_covariance, dtype=float)
         self.history.append((time, np.asarray(z, dtype=float), np.asarray(mobile, dtype=float), np.asarray(mobile_velocity, dtype=float), noise))
         if np.isnan(self.first_time):
@@ -237,8 +290,7 @@ class SourceTracker:
             return TrackerOutput(self.initialized, False, nan2, nan2)
         dt = time - self.last_time
         self.last_time = time
-        hx = self._hx(mobile, mobile_velocity)
-        self.bank = [h for h in self.bank if self._assimilate(h, time, dt, z, noise, hx)]
+        self._assimilate(dt, z, noise, mobile, mobile_velocity, time)
         if self.bank:
             self._prune()
             if self._reseed_due(time):
@@ -262,12 +314,15 @@ class SourceTracker:
 
     @property
     def position(self) -> np.ndarray:
-        return self.ukf.x[0:3].copy() if self.initialized else np.full(3, np.nan)
+        """The likeliest hypothesis's position (m); the prior's mean until the filter starts."""
+        return (self.ukf.x if self.initialized else self.prior_mean)[0:3].copy()
 
     @property
     def velocity(self) -> np.ndarray:
-        return self.ukf.x[3:6].copy() if self.initialized else np.full(3, np.nan)
+        """The likeliest hypothesis's velocity (m/s); the prior's mean until the filter starts."""
+        return (self.ukf.x if self.initialized else self.prior_mean)[3:6].copy()
 
     @property
     def position_covariance(self) -> np.ndarray:
-        return self.ukf.P[0:3, 0:3].copy() if self.initialized else np.full((3, 3), np.nan)
+        """Its position covariance (m^2); the prior's until the filter starts."""
+        return (self.ukf.P if self.initialized else self.prior_covariance)[0:3, 0:3].copy()

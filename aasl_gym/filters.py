@@ -191,7 +191,10 @@ class UnscentedKalmanFilter:
         self.P = (deviation.T * self.Wc) @ deviation + self.model.process_noise(dt)
         self.sigmas_f = merwe_sigma_points(self.x, self.P, self.spread)
 
-    def update(self, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray]) -> None:
+    def update(self, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray],
+               residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> None:
+        """Update with measurement ``z``; ``residual(z, zp)`` is z - zp unless given (filterpy's
+        ``residual_z``: a wrapped component's innovation is taken modulo its period)."""
         if self.sigmas_f is None:
             raise RuntimeError("predict() must run before update()")
         sigmas_h = hx(self.sigmas_f)
@@ -205,7 +208,7 @@ class UnscentedKalmanFilter:
             raise np.linalg.LinAlgError("innovation covariance is not positive definite")
         s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
         gain = cross @ s_inv
-        self.y = z - zp
+        self.y = z - zp if residual is None else residual(z, zp)
         self.x = self.x + gain @ self.y
         self.P = self.P - gain @ s @ gain.T
         self.P = 0.5 * (self.P + self.P.T)

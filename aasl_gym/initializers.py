@@ -44,6 +44,7 @@ import numpy as np
 from aasl_gym import geometry
 from aasl_gym.config import InitializerConfig
 from aasl_gym.fisher import measurement_jacobian
+from aasl_gym.measurements import receiver_jacobian, receiver_noise
 from aasl_gym.motion import Box, coordinated_turn_displacement
 
 logger = logging.getLogger(__name__)
@@ -60,9 +61,17 @@ class Burst:
     receiver_positions: np.ndarray  # (K, 3) m
     receiver_velocities: np.ndarray  # (K, 3) m/s
     fixed_position: np.ndarray  # (3,) m
-    noise_covariance: np.ndarray  # (2, 2) R_eff
+    noise_covariance: np.ndarray  # (2, 2) acoustic R (R_ac)
     wavelength: float | None  # m; None when the RD is unambiguous
     measurement_function: MeasurementFunction
+    residual_period: float | None = None  # m: RD residuals are taken modulo this (the phasor model's wavelength)
+    navigation_sd: tuple[float, float] = (0.0, 0.0)  # m, m/s: white error of the reported receiver state
+
+    @property
+    def uniform_covariance(self) -> np.ndarray:
+        """R_ac plus the direct path's navigation term diag(sigma_p^2, sigma_v^2): one R for every sample
+        and candidate, cheap, for finding basins (the multipath model's own term varies on a wavelength)."""
+        return self.noise_covariance + np.diag(np.square(self.navigation_sd))
 
 
 @dataclass(frozen=True)
@@ -244,8 +253,34 @@ class TdoaLeastSquaresInitializer(_BroadPrior):
 
 
 def whitener(burst: Burst) -> np.ndarray:
-    """W (2, 2) with W^T W = R^-1: whitened residuals W r have unit covariance."""
-    return np.linalg.cholesky(np.linalg.inv(burst.noise_covariance)).T
+    """W (2, 2) with W^T W = R^-1 for the burst's uniform R: whitened residuals W r have unit covariance."""
+    return np.linalg.cholesky(np.linalg.inv(burst.uniform_covariance)).T
+
+
+def inverse_cholesky(covariance: np.ndarray) -> np.ndarray:
+    """W = L^-1 (..., 2, 2) for R = L L^T, so W^T W = R^-1; closed form for 2 x 2, batched."""
+    a = np.sqrt(covariance[..., 0, 0])
+    b = covariance[..., 1, 0] / a
+    c = np.sqrt(covariance[..., 1, 1] - b**2)
+    white = np.zeros(covariance.shape)
+    white[..., 0, 0], white[..., 1, 0], white[..., 1, 1] = 1 / a, -b / (a * c), 1 / c
+    return white
+
+
+def trajectory_whitener(burst: Burst, trajectory: np.ndarray, trajectory_velocity: np.ndarray) -> np.ndarray:
+    """W (C, K, 2, 2) for R_eff = R_ac + H_r Sigma_r H_r^T of every candidate at every sample, H_r the
+    burst model's own receiver Jacobian along the candidate's trajectory (C, K, 3)."""
+    jacobian = receiver_jacobian(
+        burst.measurement_function, trajectory, trajectory_velocity, burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position
+    )
+    return inverse_cholesky(burst.noise_covariance + receiver_noise(jacobian, *burst.navigation_sd))
+
+
+def whiten(white: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """W r for residuals (..., 2) and one W (2, 2) or one per residual (..., 2, 2)."""
+    if white.ndim == 2:
+        return residual @ white.T
+    return np.einsum("...ij,...j->...i", white, residual)
 
 
 def _normal_equations(jacobian: np.ndarray, residual: np.ndarray, white: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -268,15 +303,21 @@ def _predicted(burst: Burst, positions: np.ndarray, velocities: np.ndarray, moti
 
 
 def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarray, biases: np.ndarray,
-                      motion: CandidateMotion | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      motion: CandidateMotion | None = None, per_sample: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Chi-square of the burst for candidate trajectories from p, v at its first time, moving as
-    ``motion`` says (straight without): (C,), and the whitened residuals (C, K, 2)."""
+    ``motion`` says (straight without): (C,), the whitened residuals (C, K, 2) and the whitener used:
+    the burst's uniform one, or with ``per_sample`` each candidate's own R_eff at every sample."""
     if motion is None:
         motion = CandidateMotion(burst.times - burst.times[0], np.zeros(len(positions)))
-    residual = burst.measurements[None] - _predicted(burst, positions, velocities, motion)
+    trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
+    mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
+    residual = burst.measurements[None] - burst.measurement_function(trajectory, trajectory_velocity, mobile, mobile_velocity, burst.fixed_position)
     residual[..., 0] -= biases[:, None]
-    whitened = residual @ whitener(burst).T
-    return np.sum(whitened**2, axis=(1, 2)), whitened
+    if burst.residual_period is not None:
+        residual[..., 0] = geometry.wrap_to_period(residual[..., 0], burst.residual_period)
+    white = trajectory_whitener(burst, trajectory, trajectory_velocity) if per_sample else whitener(burst)
+    whitened = whiten(white, residual)
+    return np.sum(whitened**2, axis=(1, 2)), whitened, white
 
 
 class RandomInitializer(_BroadPrior):
@@ -294,7 +335,7 @@ class RandomInitializer(_BroadPrior):
         if not keep.any():
             return NaiveInitializer(self.config)(burst, rng)
         points, biases = points[keep], biases[keep]
-        chi_square, _ = _burst_chi_square(burst, points, np.zeros_like(points), biases)
+        chi_square, _, _ = _burst_chi_square(burst, points, np.zeros_like(points), biases)
         best = int(np.argmin(chi_square))
         estimate = self.estimate(burst, points[best], biases[best], self.config.range_bias_sd)
         return InitialEstimate.single(estimate.state, estimate.covariance, candidates=len(points))
@@ -349,7 +390,7 @@ class LCMAPInitializer:
         prior = np.eye(3) / self.config.velocity_prior_sd**2
         velocities = np.zeros_like(positions)
         for _ in range(self.velocity_iterations):
-            _, residual = _burst_chi_square(burst, positions, velocities, biases, motion)
+            _, residual, _ = _burst_chi_square(burst, positions, velocities, biases, motion)
             jac = self._jacobians(burst, positions, velocities, motion)
             normal, gradient = _normal_equations(jac[..., 3:6], residual, white)
             normal = normal + prior
@@ -357,18 +398,19 @@ class LCMAPInitializer:
             velocities = velocities + np.linalg.solve(normal, gradient[..., None])[..., 0]
         return velocities, jac
 
-    def _score(self, burst: Burst, positions, velocities, biases, motion: CandidateMotion, jacobians=None):
+    def _score(self, burst: Burst, positions, velocities, biases, motion: CandidateMotion, jacobians=None, per_sample=False):
         """MAP objective J - lambda log det F for each candidate, J itself, and the information F (C, 6, 6).
 
         F uses ``jacobians`` when given (the grid passes those of its velocity solve's last step, one
-        small Gauss-Newton step away, which saves a third of the grid's cost).
+        small Gauss-Newton step away, which saves a third of the grid's cost). ``per_sample``: weigh
+        with each candidate's own R_eff (see :func:`_burst_chi_square`).
         """
         c = self.config
-        chi_square, _ = _burst_chi_square(burst, positions, velocities, biases, motion)
+        chi_square, _, white = _burst_chi_square(burst, positions, velocities, biases, motion, per_sample)
         chi_square = chi_square + np.sum(velocities**2, axis=1) / c.velocity_prior_sd**2
         jac = self._jacobians(burst, positions, velocities, motion) if jacobians is None else jacobians
         prior = np.diag([1 / c.position_sd**2] * 3 + [1 / c.velocity_prior_sd**2] * 3)
-        information = _normal_equations(jac, np.zeros(jac.shape[:3]), whitener(burst))[0] + prior
+        information = _normal_equations(jac, np.zeros(jac.shape[:3]), white)[0] + prior
         _, logdet = np.linalg.slogdet(information)
         return chi_square - c.information_weight * logdet, chi_square, information
 
@@ -386,7 +428,6 @@ class LCMAPInitializer:
         the grid only finds the basin; these steps find its bottom. Returns theta = [p, v, (omega | a)].
         """
         c = self.config
-        white = whitener(burst)
         tau = burst.times - burst.times[0]
         extra_prior = [1 / c.max_turn_rate**2] if self.fit_turn else [1 / c.acceleration_prior_sd**2] * 3 if self.fit_acceleration else []
         prior = np.diag([1e-6] * 3 + [1 / c.velocity_prior_sd**2] * 3 + extra_prior)
@@ -394,7 +435,7 @@ class LCMAPInitializer:
         theta = np.concatenate([positions, velocities] + start, axis=1)
         for _ in range(self.refine_iterations):
             motion = self._motion(tau, theta, turn_rates)
-            _, residual = _burst_chi_square(burst, theta[:, :3], theta[:, 3:6], biases, motion)
+            _, residual, white = _burst_chi_square(burst, theta[:, :3], theta[:, 3:6], biases, motion, per_sample=True)
             jac = self._jacobians(burst, theta[:, :3], theta[:, 3:6], motion, self.fit_acceleration)
             if self.fit_turn:
                 step_size = 1e-4  # rad/s
@@ -447,7 +488,7 @@ class LCMAPInitializer:
         theta = self._refine(burst, positions[chosen], velocities[chosen], biases, turn_rates)
         refined_p, refined_v = theta[:, 0:3], theta[:, 3:6]
         motion = self._motion(burst.times - burst.times[0], theta, turn_rates)
-        refined_score, chi_square, information = self._score(burst, refined_p, refined_v, biases, motion)
+        refined_score, chi_square, information = self._score(burst, refined_p, refined_v, biases, motion, per_sample=True)
         ok = self._plausible(refined_p, refined_v, self._motion(tau_end, theta, turn_rates)) & np.isfinite(refined_score)
         if ok.any():
             refined_score = np.where(ok, refined_score, np.inf)

@@ -56,6 +56,40 @@ def multipath_measurement(model: str, propagation: Propagation, position, veloci
     return np.stack([rd, rrd], axis=-1)
 
 
+RECEIVER_STEP = 1e-3  # m: central-difference step of the receiver Jacobian (a wavelength is 1.5 m)
+
+
+def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+    """d[RD, RRD] / d[p_m, v_m] of a measurement model, shape ``(..., 2, 6)``, by central differences
+    in the mobile hydrophone's position; the model is linear in its velocity (a range rate is), so a
+    one-sided difference there is exact. ``measurement_function`` is (p, v, p_m, v_m, p_f) -> (..., 2).
+
+    Under multipath the apparent RD moves with the receiver's position far faster than the direct
+    path's -u_m near an interference null, which is why R_eff needs the model's own H_r.
+    """
+    position, velocity = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
+    batch = np.broadcast_shapes(position.shape[:-1], velocity.shape[:-1], np.shape(mobile)[:-1], np.shape(mobile_velocity)[:-1])
+    # Rows 0-5 move p_m by +-step along each axis, row 6 is the point itself, rows 7-9 add 1 m/s to v_m.
+    offsets, rate_offsets = np.zeros((10, 3)), np.zeros((10, 3))
+    offsets[0:3], offsets[3:6], rate_offsets[7:10] = RECEIVER_STEP * np.eye(3), -RECEIVER_STEP * np.eye(3), np.eye(3)
+    expand = (slice(None),) * len(batch) + (None,)
+    z = measurement_function(
+        np.broadcast_to(position, batch + (3,))[expand], np.broadcast_to(velocity, batch + (3,))[expand],
+        np.broadcast_to(mobile, batch + (3,))[expand] + offsets, np.broadcast_to(mobile_velocity, batch + (3,))[expand] + rate_offsets, fixed,
+    )  # (..., 10, 2)
+    jacobian = np.empty(batch + (2, 6))
+    jacobian[..., :3] = np.swapaxes(z[..., 0:3, :] - z[..., 3:6, :], -1, -2) / (2 * RECEIVER_STEP)
+    jacobian[..., 3:] = np.swapaxes(z[..., 7:10, :] - z[..., 6:7, :], -1, -2)
+    return jacobian
+
+
+def receiver_noise(jacobian: np.ndarray, position_sd: float, velocity_sd: float) -> np.ndarray:
+    """H_r Sigma_r H_r^T (..., 2, 2): what white navigation errors of sd ``position_sd`` (m, per axis) and
+    ``velocity_sd`` (m/s) in the reported receiver state add to the measurement covariance."""
+    position, rate = jacobian[..., :3], jacobian[..., 3:]
+    return position_sd**2 * position @ np.swapaxes(position, -1, -2) + velocity_sd**2 * rate @ np.swapaxes(rate, -1, -2)
+
+
 def navigation_covariance(config: EnvConfig) -> np.ndarray:
     """The navigation term of R_eff, diag(sigma_rov^2, sigma_vel^2) (zero without compensation): what the
     robot's reported position and velocity errors add to RD and RRD at most, to first order."""

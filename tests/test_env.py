@@ -10,8 +10,9 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import aasl_gym
-from agents import PatrolPolicy
 from aasl_gym.env import OBSERVATION_SIZE
+from aasl_gym.fisher import information_prior
+from agents import PatrolPolicy
 
 IDS = list(aasl_gym.ENV_IDS)
 INFO_KEYS = {
@@ -22,16 +23,24 @@ INFO_KEYS = {
 LAST_KEYS = {"convergence_time", "rmse", "final_error", "success", "time_to_first_estimate", "reinitializations"}
 
 
-# The checker compares the first step's info of two runs with np.allclose, for which NaN != NaN; with
-# the default 2 s burst the estimate is NaN on the first step (as the spec says), so the check runs with
-# a one-step burst, which initializes the filter on the first measurement.
-ONE_STEP_BURST = {"initializer": {"burst_duration": 0.2}}
-
-
 @pytest.mark.parametrize("env_id", IDS)
-def test_gymnasium_env_checker(env_id):
-    env = gym.make(env_id, render_mode="rgb_array", config=ONE_STEP_BURST)
+def test_gymnasium_env_checker_with_the_defaults(env_id):
+    """The checker compares two seeded first steps with np.allclose (NaN != NaN): it passes only
+    because the estimate before the filter starts is the prior, never NaN."""
+    env = gym.make(env_id, render_mode="rgb_array")
     gym_check_env(env.unwrapped)
+
+
+def test_before_the_filter_starts_the_estimate_is_the_finite_prior():
+    env = gym.make("AASL-v0", measurement="geometric").unwrapped
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(3))
+    assert not info["initialized"]
+    mean, covariance = information_prior(env.config)
+    np.testing.assert_array_equal(info["estimate_position"], mean[:3])
+    np.testing.assert_array_equal(info["position_covariance"], covariance[:3, :3])
+    assert info["position_error"] == pytest.approx(np.linalg.norm(mean[:3] - info["source_position"]))
+    assert all(np.all(np.isfinite(value)) for value in info.values() if isinstance(value, (float, np.ndarray)))
 
 
 @pytest.mark.parametrize("env_id", IDS)
@@ -106,10 +115,7 @@ def test_info_contract_over_a_whole_episode():
             assert info[key].dtype == np.float64
         assert info["position_covariance"].shape == (3, 3)
         assert reward == pytest.approx(sum(info["reward_terms"].values()))
-        if not info["initialized"]:
-            assert math.isnan(info["position_error"]) and np.all(np.isnan(info["estimate_position"]))
-        else:
-            assert info["position_error"] == pytest.approx(np.linalg.norm(info["estimate_position"] - info["source_position"]))
+        assert info["position_error"] == pytest.approx(np.linalg.norm(info["estimate_position"] - info["source_position"]))
         assert LAST_KEYS.isdisjoint(info) or done
         assert obs.shape == (OBSERVATION_SIZE,) and np.all(np.abs(obs) <= 10)
     assert step == 600 and truncated and LAST_KEYS <= set(info)

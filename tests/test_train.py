@@ -132,7 +132,10 @@ def test_a_residual_model_is_evaluated_in_the_env_it_was_trained_on(tiny, tmp_pa
     greedy, zero = sorted(json.loads((report / "results.json").read_text())["episodes"], key=lambda row: row["policy"] != "greedy")
     assert greedy["policy"] == "greedy" and zero["policy"].endswith("zero.zip")
     for key in ("convergence_time", "rmse", "final_error", "time_to_first_estimate"):
-        assert zero[key] == pytest.approx(greedy[key], rel=1e-4), key
+        if greedy[key] is None:  # a convergence time of an episode that never converged
+            assert zero[key] is None, key
+        else:
+            assert zero[key] == pytest.approx(greedy[key], rel=1e-4), key
 
 
 def test_the_shipped_default_policy_loads_with_its_statistics_and_env():
