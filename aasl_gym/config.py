@@ -206,10 +206,15 @@ class FilterConfig:
     beta: float = 2.0
     kappa: float = 0.0
     divergence_window: float = 5.0  # s, window of the moving-average NIS
-    divergence_nis: float = 8.0  # mean NIS over the window above this (2 expected) = diverged
-    reinit_window: float = 10.0  # s of recent measurements LC-MAP uses to re-initialize
-    reinit_cooldown: float = 5.0  # s after a (re)initialization before divergence is tested again
+    divergence_nis: float = 8.0  # mean NIS over the window above this (2 expected) = inconsistent: search again
+    reinit_window: float = 10.0  # s of recent measurements LC-MAP re-starts the single filter on (no re-seeding)
+    reinit_cooldown: float = 5.0  # s after a (re)start or re-seed before consistency is tested again
     prune_log_ratio: float = 12.0  # a hypothesis whose log-likelihood trails the best's by this is dropped
+    ripple_lock_sd: float = 0.25  # m: phasor model only; above this position sd the ripple is treated as noise
+    ripple_split_sd: float = 0.6  # m: a hypothesis this certain picks its point on the ripple from a lattice
+    ripple_window: float = 10.0  # s of recent measurements that lattice is weighed on
+    recovery_inflation: float = 4.0  # a re-seed because the filter turned inconsistent multiplies its covariance by this
+    window_fit: bool = True  # re-seeds refine their best hypotheses by a sliding-window MAP (aasl_gym.window)
 
     def __post_init__(self) -> None:
         _choice(self.motion_model, FILTER_MODELS, "filter.motion_model")
@@ -224,6 +229,11 @@ class FilterConfig:
         _positive(self.reinit_window, "filter.reinit_window")
         _non_negative(self.reinit_cooldown, "filter.reinit_cooldown")
         _positive(self.prune_log_ratio, "filter.prune_log_ratio")
+        _positive(self.ripple_lock_sd, "filter.ripple_lock_sd")
+        _positive(self.ripple_split_sd, "filter.ripple_split_sd")
+        _positive(self.ripple_window, "filter.ripple_window")
+        _check(isinstance(self.window_fit, bool), "filter.window_fit", f"must be true or false, got {self.window_fit!r}")
+        _check(self.recovery_inflation >= 1, "filter.recovery_inflation", f"must be >= 1, got {self.recovery_inflation}")
 
 
 @dataclass(frozen=True)
@@ -242,7 +252,7 @@ class InitializerConfig:
     covariance_inflation: float = 1.0  # lcmap's local-information covariance is multiplied by this
     hypotheses: int = 12  # lcmap: distinct candidates (best of each sheet first) that each start a UKF; 1 = one filter
     reseed_interval: float = 5.0  # s; after an lcmap start, lcmap re-runs on the growing window this often (0 = never)
-    reseed_until: float = 60.0  # s, longest such window; no re-seeding after it
+    reseed_until: float = 60.0  # s, longest such window: no scheduled re-seed after it; recovery searches the last this many s
     max_turn_rate: float = 0.12  # rad/s; lcmap with a ctrv filter fits turns on a grid over +- this
     turn_rate_steps: int = 9  # values in that grid (odd keeps 0, the straight line)
     acceleration_prior_sd: float = 0.01  # m/s^2; lcmap with a ca filter fits the acceleration under this prior

@@ -98,8 +98,8 @@ class AASLEnv(gym.Env):
     bed reflect it), so a fast one can leave the surveillance region within an episode; set
     ``source.confined`` for a source that turns back at the region's edge. LC-MAP starts a bank of
     UKFs, one per likely whole-period sheet, and re-runs on its growing window (fitting the filter's
-    motion model) for the first 60 s; the reported estimate is the likeliest filter's
-    (``aasl_gym.estimator``). ``measurement.mode`` chooses how [RD, RRD] is made: ``signal``, the
+    motion model) for the first 60 s, and again on the recent window whenever the likeliest filter
+    stops explaining the data; the reported estimate is the likeliest filter's (``aasl_gym.estimator``). ``measurement.mode`` chooses how [RD, RRD] is made: ``signal``, the
     default (the acoustic front end of ``aasl_gym.acoustics`` synthesizes and processes both channels
     for a 0.2 s frame each step, and the filter's R follows each frame's measured SNR), or
     ``geometric`` (the geometry plus Gaussian noise, as in the reference paper's study).

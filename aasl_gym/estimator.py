@@ -1,20 +1,46 @@
-"""The source tracker: burst collection, initialization, a bank of UKFs, divergence detection and re-start.
+"""The source tracker: burst collection, initialization, a bank of UKFs, re-seeding and recovery.
 
 One call of :meth:`SourceTracker.step` per measurement. Until the initialization burst is complete the
-tracker only collects; then the chosen initializer starts the filter. LC-MAP returns several
-hypotheses - the best candidate of every feasible whole-period sheet, since a 2 s burst rarely tells
-the sheets apart - and each starts a UKF of its own. Every update multiplies a hypothesis's weight by
-its innovation likelihood N(y; 0, S); one that trails the best by ``filter.prune_log_ratio`` (natural
-log) is dropped, and so is one whose mean NIS over ``divergence_window`` exceeds ``divergence_nis``, whose
-covariance stops being positive definite, or whose estimate leaves the physically possible region.
-The estimate reported is the likeliest hypothesis's. Two seconds seldom show *where* on its sheet the
-source is, so after an LC-MAP start LC-MAP re-runs every ``initializer.reseed_interval`` on the growing
-window, up to ``reseed_until``, fitting the filter's motion model (straight, turning or accelerating; see
-:mod:`aasl_gym.initializers`), even when a filter already looks confident (a confident
-filter can sit on a wrong, self-consistent solution); its fresh hypotheses and the running filters are
-weighed on that window's chi-square and the best ``initializer.hypotheses`` continue. When no
-hypothesis is left the tracker re-starts with LC-MAP on the most recent ``reinit_window`` of
-measurements, and the step says so. The filter never raises into the episode.
+tracker only collects (the estimate is the prior's); then the chosen initializer starts the filter.
+LC-MAP returns several hypotheses - the best candidate of every feasible whole-period sheet, since a 2 s
+burst rarely tells the sheets apart - and each starts a UKF of its own. Every update multiplies a
+hypothesis's weight by its innovation likelihood N(y; 0, S); one that trails the best by
+``filter.prune_log_ratio`` (natural log) is dropped, and so is one whose covariance stops being
+positive definite or whose estimate leaves the physically possible region. The estimate reported is
+the likeliest hypothesis's.
+
+R. Each update uses R_eff = R_ac + H_r Sigma_r H_r^T, with H_r the receiver Jacobian of the filter's
+own measurement model at the hypothesis's estimate (the paper's general form). Under multipath the
+apparent RD and RRD move with the receiver far faster than the direct path's -u_m says, and a 5 cm
+navigation error alone made a filter started at the truth diverge.
+
+The phasor model's ripple. The exact tone model's multipath correction (apparent RD minus direct RD)
+is a phase over k: it ripples on a fraction of a wavelength as the source moves, jumps by a wavelength
+where a phasor sum winds round zero, and the measured track need not jump with it. So its RD
+residuals are taken modulo the wavelength, each sigma point's correction is taken within half a
+wavelength of the central point's, and a hypothesis too uncertain to resolve the ripple (position sd
+above ``filter.ripple_lock_sd``, not yet ``resolved``) sees the correction at its mean for every
+sigma point and the correction's spread as noise. When its sd falls below ``ripple_split_sd`` it picks
+its point on the ripple from a small lattice weighed on the recent window (:meth:`_resolve_ripple`).
+LC-MAP and the re-seed windows weigh candidates metres apart, with the direct path and the ripple's
+spread over the volume (:func:`~aasl_gym.measurements.multipath_spread`) as robust (soft-L1) noise.
+
+Re-seeding. Two seconds seldom show *where* on its sheet the source is, so after an LC-MAP start
+LC-MAP re-runs every ``initializer.reseed_interval`` on the growing window, up to ``reseed_until``,
+fitting the filter's motion model (straight, turning or accelerating; see :mod:`aasl_gym.initializers`),
+even when a filter already looks confident (a confident filter can sit on a wrong, self-consistent
+solution). Its fresh hypotheses and the running filters are weighed on that window's chi-square (a
+fresh one next to a running filter on its sheet yields to it), and with ``filter.window_fit`` the best
+``initializer.hypotheses`` are refined by the sliding-window MAP (:mod:`aasl_gym.window`; under the
+phasor model a second fit resolves the ripple, kept only where it explains the window).
+
+Recovery, at any time. When the likeliest filter's mean NIS over ``divergence_window`` exceeds
+``divergence_nis`` (after ``reinit_cooldown``), the tracker re-seeds on the recent window (at most
+``reseed_until`` s), the running filters competing with their covariances widened by
+``filter.recovery_inflation``; if a fresh hypothesis wins, the step reports a re-initialization. When
+no hypothesis is left at all, LC-MAP re-starts on that window. The paper's single filter
+(``initializer.reseed_interval: 0``) has no re-seeding: an inconsistent filter is dropped and LC-MAP
+re-starts on the last ``reinit_window``. The filter never raises into the episode.
 """
 
 from __future__ import annotations
@@ -27,15 +53,19 @@ import numpy as np
 
 from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
-from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model
+from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_weights
 from aasl_gym.fisher import information_prior
 from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, trajectory_whitener, whiten
-from aasl_gym.measurements import Propagation, multipath_measurement, receiver_jacobian, receiver_noise
-from aasl_gym.motion import Box
+from aasl_gym.measurements import Propagation, direct_measurement, multipath_measurement, multipath_spread, receiver_jacobian, receiver_noise
+from aasl_gym.motion import Box, receiver_region
+from aasl_gym.window import fit_window, subsample
 
 logger = logging.getLogger(__name__)
 
 EXTRA_STATE_SD = {"cv": 0.0, "ca": 0.02, "ctrv": 0.1}  # initial sd of acceleration (m/s^2) / turn rate (rad/s)
+RIPPLE_SAMPLES = 120  # a fine (phasor) window fit uses at most this many samples, evenly spaced
+RIPPLE_FITS = 4  # window fits that go on to the phasor model's ripple (the best of the coarse fits)
+RIPPLE_GATE = 3.0  # robust cost per residual a fine window fit may have (at the truth ~1.5, in a wrong dip ~9)
 
 
 @dataclass
@@ -52,6 +82,13 @@ class Hypothesis:
     log_weight: float  # log likelihood of the data since its start, relative to the best hypothesis
     started: float  # s, when this hypothesis was (re)started
     nis: deque  # recent normalized innovations squared
+    resolved: bool = False  # its point on the phasor model's ripple was chosen (:meth:`SourceTracker._resolve_ripple`)
+
+
+def _covariances(information: np.ndarray, inflation: float) -> np.ndarray:
+    """Symmetric covariances (H, n, n) from information matrices, times ``inflation``."""
+    covariances = np.linalg.inv(information) * inflation
+    return 0.5 * (covariances + covariances.transpose(0, 2, 1))
 
 
 class SourceTracker:
@@ -59,6 +96,7 @@ class SourceTracker:
         self.config = config
         self.region = region
         self.noise_covariance = noise_covariance  # R_ac, the acoustic part of R_eff
+        self.fixed = np.asarray(config.world.fixed_position, dtype=float)
         receiver = config.receiver
         compensate = config.filter.compensate_navigation
         self.navigation_sd = (receiver.nav_position_sd, receiver.velocity_sd) if compensate else (0.0, 0.0)
@@ -74,13 +112,25 @@ class SourceTracker:
         # wavelength in one step near a null, so neither it nor the unwrapped measured track can be
         # trusted beyond a whole period. Its RD residuals are taken modulo the wavelength (circular).
         self.correction_period = config.wavelength if f.multipath == "phasor" else None
-        self.fixed = np.asarray(config.world.fixed_position, dtype=float)
+        self.ripple = f.multipath == "phasor"
+        self.sigma_spread = merwe_weights(self.model.dim, f.alpha, f.beta, f.kappa)[2]
+        # What the phasor model's correction adds when unresolved: LC-MAP and the re-seed windows weigh
+        # every candidate with the direct path and this as extra noise (their candidates are metres apart).
+        self.multipath_noise = np.zeros((2, 2))
+        if self.ripple:
+            self.multipath_noise = multipath_spread(
+                self.propagation, region, receiver_region(config.world, receiver), self.fixed,
+                config.source.max_speed, receiver.max_speed,
+            )
         rate = config.measurement.rate
         self.burst_length = max(1, int(round(config.initializer.burst_duration * rate)))
         self.reinit_length = max(2, int(round(f.reinit_window * rate)))
         ini = config.initializer
         self.reseed_length = int(round(ini.reseed_until * rate)) + 1 if ini.reseed_interval > 0 else 0
         self.nis_length = max(1, int(round(f.divergence_window * rate)))
+        # A bank that re-seeds recovers from an inconsistent filter by searching again; the paper's single
+        # filter (``reseed_interval: 0``) re-starts instead.
+        self.recovers = ini.reseed_interval > 0
         self.prior_mean, self.prior_covariance = information_prior(config)  # what is known before any measurement
         self.reset()
 
@@ -98,18 +148,43 @@ class SourceTracker:
     def measurement_function(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
         return multipath_measurement(self.config.filter.multipath, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
 
-    def _hx(self, mobile: np.ndarray, mobile_velocity: np.ndarray):
-        """The UKF's h: under the phasor model each sigma point's multipath correction is taken within
-        half a wavelength of the central point's, so that a branch cut between them cannot pose as spread."""
-        def hx(states: np.ndarray) -> np.ndarray:
-            z = self.measurement_function(states[:, 0:3], states[:, 3:6], mobile, mobile_velocity, self.fixed)
-            if self.correction_period is not None:
-                direct = geometry.range_difference(states[:, 0:3], mobile, self.fixed)
-                correction = z[:, 0] - direct
-                z[:, 0] = direct + correction[0] + geometry.wrap_to_period(correction - correction[0], self.correction_period)
-            return z + states[:, -2:]
+    def window_function(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+        """The model windows (LC-MAP, re-seeding) are weighed with: the direct path where the filter's
+        model has a ripple (its burst R then carries the ripple as noise, ``multipath_noise``), else the filter's."""
+        model = "none" if self.ripple else self.config.filter.multipath
+        return multipath_measurement(model, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
 
-        return hx
+    def _sigma_measurements(self, sigmas: np.ndarray, position_sd: np.ndarray, resolved: np.ndarray, mobile: np.ndarray,
+                            mobile_velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """h at the sigma points (H, S, n) of every hypothesis at once, and the noise each adds to R_ac.
+
+        The noise is the navigation term H_r Sigma_r H_r^T at the hypothesis's mean (row 0). Under the
+        phasor model each sigma point's multipath correction is first taken within half a wavelength of
+        the central point's (a branch cut between them is not spread). A hypothesis whose position sd
+        (``position_sd``, m, largest axis) exceeds ``filter.ripple_lock_sd`` cannot resolve the
+        correction's ripple, whose scale is a fraction of a wavelength, unless its point on the ripple
+        was chosen (``resolved``, by a window fit or a lattice): it gets the correction at its
+        mean for every sigma point, and the correction's spread over the sigma points as noise instead.
+        """
+        position, velocity = sigmas[..., 0:3], sigmas[..., 3:6]
+        z = self.measurement_function(position, velocity, mobile, mobile_velocity, self.fixed)
+        noise = np.zeros((len(sigmas), 2, 2))
+        coarse = np.zeros(len(sigmas), dtype=bool)
+        if self.ripple:
+            direct = direct_measurement(position, velocity, mobile, mobile_velocity, self.fixed)
+            correction = z - direct
+            centre = correction[:, :1]
+            correction[..., 0] = centre[..., 0] + geometry.wrap_to_period(correction[..., 0] - centre[..., 0], self.correction_period)
+            z = direct + correction
+            coarse = (position_sd > self.config.filter.ripple_lock_sd) & ~resolved
+            deviation = correction[coarse, 1:] - centre[coarse]
+            noise[coarse] = np.einsum("hsi,hsj->hij", deviation, deviation) / (2 * self.sigma_spread)  # the Merwe weights of rows 1..2n
+            z[coarse] = direct[coarse] + centre[coarse]
+        for model, rows in ((self.measurement_function, ~coarse), (direct_measurement, coarse)):
+            if rows.any():
+                jacobian = receiver_jacobian(model, position[rows, 0], velocity[rows, 0], mobile, mobile_velocity, self.fixed)
+                noise[rows] += receiver_noise(jacobian, *self.navigation_sd)
+        return z + sigmas[..., -2:], noise
 
     def residual(self, measured: np.ndarray, predicted: np.ndarray) -> np.ndarray:
         """z - h, with the RD part modulo the wavelength under the phasor model (see ``correction_period``)."""
@@ -118,7 +193,9 @@ class SourceTracker:
             difference[..., 0] = geometry.wrap_to_period(difference[..., 0], self.correction_period)
         return difference
 
-    def _burst(self, length: int) -> Burst:
+    def _burst(self, length: int, fine: bool = False) -> Burst:
+        """The last ``length`` measurements as a :class:`Burst`, weighed with the window model
+        (:meth:`window_function`, the ripple as noise) or, ``fine``, with the filter's own model."""
         rows = list(self.history)[-length:]
         times, z, positions, velocities = (np.array(column) for column in list(zip(*rows))[:4])
         # An initializer weighs a burst with one R: the rows' own when they share it, else their mean
@@ -126,8 +203,10 @@ class SourceTracker:
         covariances = [row[4] for row in rows]
         shared = all(c is covariances[0] for c in covariances)
         noise = covariances[0] if shared else np.mean(covariances, axis=0)
-        return Burst(times, z, positions, velocities, self.fixed, noise, self.wavelength, self.measurement_function,
-                     self.correction_period, self.navigation_sd)
+        model = self.measurement_function if fine else self.window_function
+        noise = noise if fine else noise + self.multipath_noise
+        return Burst(times, z, positions, velocities, self.fixed, noise, self.wavelength, model, self.correction_period,
+                     self.navigation_sd, robust=self.ripple)
 
     def _reachable(self, time: float) -> Box:
         """Where the source can be at ``time``: the start region grown by the fastest plausible travel."""
@@ -171,6 +250,7 @@ class SourceTracker:
         return Hypothesis(ukf, float(log_weight), time, deque(maxlen=self.nis_length))
 
     def _reseed_due(self, time: float) -> bool:
+        """A scheduled re-seed: every ``reseed_interval`` while the window since the LC-MAP start grows."""
         ini = self.config.initializer
         return (
             self.reseeding
@@ -178,39 +258,106 @@ class SourceTracker:
             and time - self.last_reseed >= ini.reseed_interval - 1e-9
         )
 
+    def _window_length(self, time: float) -> int:
+        """Samples of the re-seed window: since the LC-MAP start, at most the last ``reseed_until`` seconds."""
+        start = max(self.window_start, time - self.config.initializer.reseed_until)
+        return sum(1 for row in self.history if row[0] >= start - 1e-9)
+
     def _window_chi_square(self, burst: Burst, states: np.ndarray) -> np.ndarray:
         """Chi-square of ``burst`` for model states (H, dim) given at its last time, each run back
         along its own motion model: puts running filters and fresh candidates on one scale. Each sample
-        is weighed with the state's own R_eff there (the navigation term depends on where the source is)."""
-        lags = burst.times - burst.times[-1]  # <= 0
-        trajectory = np.stack([self.model.transition(states, lag) for lag in lags], axis=1)  # (H, K, dim)
+        is weighed with the state's own R_eff there (the navigation term depends on where the source is);
+        a robust burst sums the soft-L1 loss instead of the squares."""
+        trajectory = self.model.trajectory(states, burst.times - burst.times[-1])  # (H, K, dim)
         position, velocity = trajectory[..., 0:3], trajectory[..., 3:6]
-        predicted = self.measurement_function(
+        predicted = burst.measurement_function(
             position, velocity, burst.receiver_positions[None], burst.receiver_velocities[None], self.fixed
         ) + trajectory[..., -2:]
         whitened = whiten(trajectory_whitener(burst, position, velocity), self.residual(burst.measurements[None], predicted))
         velocity_prior = np.sum(states[:, 3:6] ** 2, axis=1) / self.config.initializer.velocity_prior_sd**2
-        return np.sum(whitened**2, axis=(1, 2)) + velocity_prior
+        squared = whitened**2
+        return np.sum(2 * (np.sqrt(1 + squared) - 1) if burst.robust else squared, axis=(1, 2)) + velocity_prior
 
-    def _reseed(self, time: float, rng: np.random.Generator) -> None:
-        """Run LC-MAP on the window since the last LC-MAP start; its hypotheses compete with the filters.
+    def _reseed(self, time: float, rng: np.random.Generator, inflation: float = 1.0) -> bool:
+        """Run LC-MAP on the recent window (:meth:`_window_length`); its hypotheses compete with the
+        filters. True if the likeliest hypothesis afterwards is a fresh one (the tracker jumped).
 
         Two seconds rarely show where on its sheet the source lies, so the first bank often has no
         hypothesis near the truth; a longer window does. Running filters and fresh candidates are
-        weighed on the same window (its chi-square); near-duplicates on one sheet keep the better.
+        weighed on the same window (its chi-square). Under the phasor model a fresh candidate on a
+        running filter's sheet and within ``separation`` of it is dropped: the window weighs it with the
+        direct path, the filter resolves the ripple. (In the free field the fresh one may win: the
+        window fit uses all of its samples, the filter forgets through its process noise; keeping the
+        filter there delayed convergence of CV sources by 36 s on average, 30 tuning seeds.)
+        The running filters' covariances are multiplied by ``inflation`` (a re-seed because they turned
+        inconsistent lets them re-adapt).
         """
         self.last_reseed = time
-        burst = self._burst(sum(1 for row in self.history if row[0] >= self.window_start))
+        burst = self._burst(self._window_length(time))
         fresh = self._lcmap_at(time)(burst, rng)
-        candidates = [(h.ukf.x, h.ukf.P) for h in self.bank]
-        candidates += [self._embed(fresh, i) for i in range(len(fresh.states))]
+        running = [(h.ukf.x, h.ukf.P * inflation) for h in self.bank]
+        candidates = running + [self._embed(fresh, i) for i in range(len(fresh.states))]
         states = np.array([x for x, _ in candidates])
         base = states[:, self.model.base_index]
         chi_square = self._window_chi_square(burst, states)
-        order = [i for i in np.argsort(chi_square, kind="stable") if np.isfinite(chi_square[i])]
-        kept = distinct_hypotheses(order, base[:, :3], base[:, 6], self.config.initializer.hypotheses, self.reinitializer.separation, self.wavelength)
-        if kept:
+        separation, tolerance = self.reinitializer.separation, 0.5 * self.wavelength if self.wavelength else np.inf
+        duplicate = [
+            self.ripple and i >= len(running) and any(
+                abs(base[i, 6] - base[j, 6]) < tolerance and np.linalg.norm(base[i, :3] - base[j, :3]) < separation for j in range(len(running))
+            )
+            for i in range(len(candidates))
+        ]
+        order = [i for i in np.argsort(chi_square, kind="stable") if np.isfinite(chi_square[i]) and not duplicate[i]]
+        kept = distinct_hypotheses(order, base[:, :3], base[:, 6], self.config.initializer.hypotheses, separation, self.wavelength)
+        if not kept:
+            return False
+        if not self.config.filter.window_fit:
             self.bank = [self._hypothesis(*candidates[i], -0.5 * (chi_square[i] - chi_square[kept[0]]), time) for i in kept]
+            return kept[0] >= len(running)
+        fits = self._fit_window(len(burst.times), states[kept])
+        self.bank = [self._hypothesis(x, covariance, log_weight, time) for _, x, covariance, log_weight, _ in fits]
+        for hypothesis, fitted in zip(self.bank, fits):
+            hypothesis.resolved = fitted[4]
+        return kept[fits[0][0]] >= len(running)
+
+    def _fit_window(self, length: int, states: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
+        """The sliding-window MAP (:func:`aasl_gym.window.fit_window`) of the last ``length`` samples
+        from each of ``states`` (H, n): (start index, state, covariance, log weight, resolved), best first.
+
+        Under the phasor model the window is fitted twice: with the ripple as noise (robust), then the
+        best ``RIPPLE_FITS`` of those with the phasor model itself. A fine fit that does not
+        explain the window (robust cost per residual above ``RIPPLE_GATE``) sits in a wrong dip of the
+        ripple: its coarse fit is kept instead, unresolved, after the fine fits that passed.
+        """
+        ini = self.config.initializer
+        prior_sd = np.full(self.model.dim, np.inf)
+        prior_sd[3:6] = ini.velocity_prior_sd
+        if self.model.name == "ctrv":
+            prior_sd[6] = ini.max_turn_rate
+        elif self.model.name == "ca":
+            prior_sd[6:9] = ini.acceleration_prior_sd
+        prior_sd[-2:] = (self.config.wavelength if self.ripple else ini.range_bias_sd), ini.rate_bias_sd
+        prior_mean = np.zeros_like(states)
+        prior_mean[:, -2] = states[:, -2]  # each keeps its whole-period sheet
+        # Every sample: halving a 47 s window moved a CV fit from 0.17 m to 0.63 m off (the filter: 0.13 m).
+        fit = fit_window(self._burst(length), self.model, states, prior_mean, prior_sd, robust=self.ripple)
+        covariances = _covariances(fit.information, ini.covariance_inflation)
+        order = np.argsort(fit.costs, kind="stable")
+        coarse = [(i, fit.states[i], covariances[i], -0.5 * (fit.costs[i] - fit.costs[order[0]]), False) for i in order]
+        if not self.ripple:
+            return coarse
+        burst = subsample(self._burst(length, fine=True), RIPPLE_SAMPLES)
+        top = order[:RIPPLE_FITS]
+        fine = fit_window(burst, self.model, fit.states[top], prior_mean[top], prior_sd, robust=True)
+        passed = np.flatnonzero(fine.costs <= RIPPLE_GATE * burst.measurements.size)
+        if passed.size == 0:
+            return coarse
+        fine_covariances = _covariances(fine.information, ini.covariance_inflation)
+        passed = passed[np.argsort(fine.costs[passed], kind="stable")]
+        resolved = [(top[i], fine.states[i], fine_covariances[i], -0.5 * (fine.costs[i] - fine.costs[passed[0]]), True) for i in passed]
+        # The coarse fits that were not resolved follow, half the pruning ratio behind the resolved ones.
+        behind = -0.5 * self.config.filter.prune_log_ratio
+        return resolved + [(i, x, p, w + behind, False) for i, x, p, w, _ in coarse if i not in top[passed]]
 
     def _implausible(self, ukf: UnscentedKalmanFilter, time: float) -> bool:
         if not np.all(np.isfinite(ukf.x)):
@@ -229,18 +376,11 @@ class SourceTracker:
             return False
         return float(np.mean(hypothesis.nis)) > self.config.filter.divergence_nis
 
-    def _navigation_noise(self, means: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray) -> np.ndarray:
-        """H_r Sigma_r H_r^T (H, 2, 2) of the filter's own measurement model at each hypothesis's mean:
-        the navigation term of R_eff (the paper's general form; the direct path's is nearly diagonal)."""
-        position_sd, velocity_sd = self.navigation_sd
-        if position_sd == 0 and velocity_sd == 0:
-            return np.zeros((len(means), 2, 2))
-        jacobian = receiver_jacobian(self.measurement_function, means[:, 0:3], means[:, 3:6], mobile, mobile_velocity, self.fixed)
-        return receiver_noise(jacobian, position_sd, velocity_sd)
-
     def _assimilate(self, dt: float, z: np.ndarray, noise: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, time: float) -> None:
-        """Predict every hypothesis, then update it with R_eff = ``noise`` + its navigation term; drop
-        those whose covariance breaks or that turn implausible or inconsistent."""
+        """Predict every hypothesis, then update it with R_ac (``noise``) plus what its model adds (see
+        :meth:`_sigma_measurements`, which serves the whole bank in one call); drop those whose
+        covariance breaks or that turn implausible, and - for the paper's single filter, which has no
+        re-seeding to recover with - inconsistent."""
         predicted = []
         for hypothesis in self.bank:
             try:
@@ -251,20 +391,53 @@ class SourceTracker:
         if not predicted:
             self.bank = []
             return
-        navigation = self._navigation_noise(np.array([h.ukf.x for h in predicted]), mobile, mobile_velocity)
-        hx = self._hx(mobile, mobile_velocity)
+        sigmas = np.stack([h.ukf.sigmas_f for h in predicted])
+        position_sd = np.array([self._position_sd(h.ukf.P) for h in predicted])
+        resolved = np.array([h.resolved for h in predicted])
+        sigma_z, extra = self._sigma_measurements(sigmas, position_sd, resolved, mobile, mobile_velocity)
         kept = []
-        for hypothesis, extra in zip(predicted, navigation):
+        for hypothesis, predicted_z, extra_noise in zip(predicted, sigma_z, extra):
             ukf = hypothesis.ukf
             try:
-                ukf.update(z, noise + extra, hx, self.residual)
+                # h was evaluated for the whole bank at once: this h hands back the hypothesis's share.
+                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.residual)
             except np.linalg.LinAlgError:
                 continue
             hypothesis.log_weight += ukf.log_likelihood
             hypothesis.nis.append(ukf.nis)
-            if not (self._implausible(ukf, time) or self._inconsistent(hypothesis, time)):
+            if not (self._implausible(ukf, time) or (not self.recovers and self._inconsistent(hypothesis, time))):
+                if self.ripple and not hypothesis.resolved and self._position_sd(ukf.P) < self.config.filter.ripple_split_sd:
+                    hypothesis = self._resolve_ripple(hypothesis, time)
                 kept.append(hypothesis)
         self.bank = kept
+
+    def _resolve_ripple(self, hypothesis: Hypothesis, time: float) -> Hypothesis:
+        """Where a hypothesis's position sd has just fallen within reach of the ripple
+        (``filter.ripple_split_sd``), pick its point on the ripple: a 3 x 3 x 3 lattice of states at 0 and
+        +-1 sd along the principal axes of its position covariance, each weighed on the recent window
+        (``ripple_window``) with the filter's own model and R_eff; the best continues, with the
+        lattice cell (a third of the sd) as its position spread, resolving the ripple from then on."""
+        ukf = hypothesis.ukf
+        variances, axes = np.linalg.eigh(ukf.P[0:3, 0:3])
+        steps = np.stack(np.meshgrid(*[np.array([-1.0, 0.0, 1.0])] * 3, indexing="ij"), -1).reshape(-1, 3)
+        states = np.repeat(ukf.x[None], len(steps), axis=0)
+        states[:, 0:3] += (steps * np.sqrt(variances)) @ axes.T
+        length = sum(1 for row in self.history if row[0] >= time - self.config.filter.ripple_window - 1e-9)
+        chi_square = self._window_chi_square(self._burst(length, fine=True), states)
+        best = int(np.argmin(chi_square))
+        covariance = ukf.P.copy()
+        shrink = axes @ np.diag(np.full(3, 1 / 3)) @ axes.T  # the cell: a third of the sd along each axis
+        covariance[0:3, :] = shrink @ covariance[0:3, :]
+        covariance[:, 0:3] = covariance[:, 0:3] @ shrink.T
+        fresh = self._hypothesis(states[best], covariance, hypothesis.log_weight, hypothesis.started)
+        fresh.nis.extend(hypothesis.nis)
+        fresh.resolved = True
+        return fresh
+
+    @staticmethod
+    def _position_sd(covariance: np.ndarray) -> float:
+        """sd (m) of the position along its least certain axis."""
+        return float(np.sqrt(np.linalg.eigvalsh(covariance[0:3, 0:3])[-1]))
 
     def _prune(self) -> None:
         best = max(h.log_weight for h in self.bank)
@@ -291,17 +464,23 @@ class SourceTracker:
         dt = time - self.last_time
         self.last_time = time
         self._assimilate(dt, z, noise, mobile, mobile_velocity, time)
-        if self.bank:
-            self._prune()
-            if self._reseed_due(time):
-                self._reseed(time, rng)
-        else:
+        if not self.bank:
             logger.debug("every hypothesis diverged at t = %.1f s; re-initializing with LC-MAP", time)
             self.reinitializations += 1
-            self._start(self._lcmap_at(time), min(self.reinit_length, len(self.history)), rng)
+            length = self._window_length(time) if self.recovers else self.reinit_length
+            self._start(self._lcmap_at(time), min(max(length, 2), len(self.history)), rng)
             return TrackerOutput(True, True, nan2, nan2)
+        self._prune()
+        jumped = False
+        if self.recovers and self._inconsistent(self.bank[0], time):
+            # The likeliest filter stopped explaining the data: search again on the recent window, at any time.
+            logger.debug("inconsistent at t = %.1f s; re-seeding on the recent window", time)
+            jumped = self._reseed(time, rng, inflation=self.config.filter.recovery_inflation)
+        elif self._reseed_due(time):
+            self._reseed(time, rng)
+        self.reinitializations += jumped
         ukf = self.ukf
-        return TrackerOutput(True, False, ukf.y.copy(), np.sqrt(np.diag(ukf.S)))
+        return TrackerOutput(True, jumped, ukf.y.copy(), np.sqrt(np.diag(ukf.S)))
 
     @property
     def ukf(self) -> UnscentedKalmanFilter:

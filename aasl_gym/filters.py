@@ -57,6 +57,11 @@ class MotionModel:
     def _kinematic_noise(self, dt: float) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        """States (C, n) carried ``lags`` (K,) seconds along the model (lags may be negative): (C, K, n)."""
+        expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim))
+        return self.transition(expanded, np.asarray(lags, dtype=float)[None, :, None])
+
     def process_noise(self, dt: float) -> np.ndarray:
         if dt not in self._noise_cache:
             q = np.zeros((self.dim, self.dim))
@@ -118,9 +123,10 @@ class CoordinatedTurn(MotionModel):
 
     name, dim = "ctrv", 9
 
-    def transition(self, states: np.ndarray, dt: float) -> np.ndarray:
+    def transition(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         out = states.copy()
-        displacement, velocity = coordinated_turn_displacement(states[..., 3:6], states[..., 6], dt)
+        step = np.asarray(dt)
+        displacement, velocity = coordinated_turn_displacement(states[..., 3:6], states[..., 6], step[..., 0] if step.ndim else step)
         out[..., 0:3] += displacement
         out[..., 3:6] = velocity
         return out

@@ -66,6 +66,7 @@ class Burst:
     measurement_function: MeasurementFunction
     residual_period: float | None = None  # m: RD residuals are taken modulo this (the phasor model's wavelength)
     navigation_sd: tuple[float, float] = (0.0, 0.0)  # m, m/s: white error of the reported receiver state
+    robust: bool = False  # soft-L1 loss: for data the model explains only roughly (multipath taken as noise)
 
     @property
     def uniform_covariance(self) -> np.ndarray:
@@ -252,6 +253,13 @@ class TdoaLeastSquaresInitializer(_BroadPrior):
         return self.estimate(burst, position, 0.0, _uninformed_bias_sd(burst))
 
 
+def periodic_residual(residual: np.ndarray, burst: Burst) -> np.ndarray:
+    """RD residuals (..., 2) modulo the burst's ``residual_period``, if it has one (in place)."""
+    if burst.residual_period is not None:
+        residual[..., 0] = geometry.wrap_to_period(residual[..., 0], burst.residual_period)
+    return residual
+
+
 def whitener(burst: Burst) -> np.ndarray:
     """W (2, 2) with W^T W = R^-1 for the burst's uniform R: whitened residuals W r have unit covariance."""
     return np.linalg.cholesky(np.linalg.inv(burst.uniform_covariance)).T
@@ -306,18 +314,25 @@ def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarra
                       motion: CandidateMotion | None = None, per_sample: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Chi-square of the burst for candidate trajectories from p, v at its first time, moving as
     ``motion`` says (straight without): (C,), the whitened residuals (C, K, 2) and the whitener used:
-    the burst's uniform one, or with ``per_sample`` each candidate's own R_eff at every sample."""
+    the burst's uniform one, or with ``per_sample`` each candidate's own R_eff at every sample.
+
+    A ``robust`` burst sums the soft-L1 loss 2 (sqrt(1 + r^2) - 1) instead of r^2, and returns the
+    residuals and whiteners scaled by the square roots of its weights 1 / sqrt(1 + r^2), so that the
+    Gauss-Newton steps built from them are iteratively reweighted least squares."""
     if motion is None:
         motion = CandidateMotion(burst.times - burst.times[0], np.zeros(len(positions)))
     trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
     mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
     residual = burst.measurements[None] - burst.measurement_function(trajectory, trajectory_velocity, mobile, mobile_velocity, burst.fixed_position)
     residual[..., 0] -= biases[:, None]
-    if burst.residual_period is not None:
-        residual[..., 0] = geometry.wrap_to_period(residual[..., 0], burst.residual_period)
+    residual = periodic_residual(residual, burst)
     white = trajectory_whitener(burst, trajectory, trajectory_velocity) if per_sample else whitener(burst)
     whitened = whiten(white, residual)
-    return np.sum(whitened**2, axis=(1, 2)), whitened, white
+    if not burst.robust:
+        return np.sum(whitened**2, axis=(1, 2)), whitened, white
+    root_weight = (1 + whitened**2) ** -0.25
+    cost = np.sum(2 * (np.sqrt(1 + whitened**2) - 1), axis=(1, 2))
+    return cost, root_weight * whitened, root_weight[..., None] * np.broadcast_to(white, whitened.shape + (2,))
 
 
 class RandomInitializer(_BroadPrior):
@@ -386,11 +401,10 @@ class LCMAPInitializer:
 
     def _solve_velocities(self, burst: Burst, positions: np.ndarray, biases: np.ndarray, motion: CandidateMotion) -> tuple[np.ndarray, np.ndarray]:
         """MAP velocities for fixed positions, and the Jacobians (C, K, 2, 6) of the last linearization."""
-        white = whitener(burst)
         prior = np.eye(3) / self.config.velocity_prior_sd**2
         velocities = np.zeros_like(positions)
         for _ in range(self.velocity_iterations):
-            _, residual, _ = _burst_chi_square(burst, positions, velocities, biases, motion)
+            _, residual, white = _burst_chi_square(burst, positions, velocities, biases, motion)
             jac = self._jacobians(burst, positions, velocities, motion)
             normal, gradient = _normal_equations(jac[..., 3:6], residual, white)
             normal = normal + prior

@@ -90,6 +90,34 @@ def receiver_noise(jacobian: np.ndarray, position_sd: float, velocity_sd: float)
     return position_sd**2 * position @ np.swapaxes(position, -1, -2) + velocity_sd**2 * rate @ np.swapaxes(rate, -1, -2)
 
 
+def multipath_spread(propagation: Propagation, sources, receivers, fixed, source_speed: float, receiver_speed: float,
+                     samples: int = 4000) -> np.ndarray:
+    """diag of the phasor model's multipath correction's variance (RD m^2, RRD m^2/s^2) over the
+    surveillance volume: sources uniform in the ``sources`` box, receivers in ``receivers`` (motion Boxes),
+    random velocities up to the given speeds. The RD correction is taken modulo the wavelength about
+    its circular mean. What a filter that cannot yet resolve the ripple must treat as noise.
+
+    Deterministic (a fixed-seed sample): a property of the world, not of an episode.
+    """
+    rng = np.random.default_rng(0)
+
+    def inside(box) -> np.ndarray:
+        radius = box.radius * np.sqrt(rng.uniform(size=samples))
+        angle = rng.uniform(0, 2 * np.pi, samples)
+        return np.stack([radius * np.cos(angle), radius * np.sin(angle), rng.uniform(box.z_min, box.z_max, samples)], -1)
+
+    def velocities(speed: float) -> np.ndarray:
+        direction = rng.normal(size=(samples, 3))
+        return speed * rng.uniform(size=(samples, 1)) * direction / np.linalg.norm(direction, axis=1, keepdims=True)
+
+    arguments = (inside(sources), velocities(source_speed), inside(receivers), velocities(receiver_speed), np.asarray(fixed, dtype=float))
+    correction = multipath_measurement("phasor", propagation, *arguments) - direct_measurement(*arguments)
+    period = 2 * np.pi / propagation.wavenumber
+    phase = np.angle(np.mean(np.exp(2j * np.pi * correction[:, 0] / period)))
+    rd = geometry.wrap_to_period(correction[:, 0] - phase * period / (2 * np.pi), period)
+    return np.diag([np.mean(rd**2), np.var(correction[:, 1])])
+
+
 def navigation_covariance(config: EnvConfig) -> np.ndarray:
     """The navigation term of R_eff, diag(sigma_rov^2, sigma_vel^2) (zero without compensation): what the
     robot's reported position and velocity errors add to RD and RRD at most, to first order."""

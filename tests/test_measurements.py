@@ -14,10 +14,11 @@ from aasl_gym.measurements import (
     Propagation,
     direct_measurement,
     multipath_measurement,
+    multipath_spread,
     receiver_jacobian,
     receiver_noise,
 )
-from aasl_gym.motion import source_region
+from aasl_gym.motion import receiver_region, source_region
 
 FIXED = np.array([0.0, 0.0, -0.96])
 PHASOR = partial(multipath_measurement, "phasor", Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5))
@@ -61,28 +62,66 @@ def test_navigation_term_matches_a_monte_carlo_of_receiver_errors(rng):
     assert expected[0, 0] > 3 * position_sd**2 and expected[1, 1] > 30 * velocity_sd**2
 
 
+def phasor_tracker() -> SourceTracker:
+    config = EnvConfig()
+    return SourceTracker(config, source_region(config.world, config.source), np.eye(2))
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_unscented_transform_of_the_phasor_model_matches_monte_carlo(seed):
     """The tracker's h (the phasor model, its multipath correction kept continuous across the sigma
     points) through Merwe sigma points gives the mean and covariance of z that a Monte Carlo of the
     same Gaussian does, within the Monte Carlo's error plus a small share of the spread."""
     rng = np.random.default_rng(seed)
-    config = EnvConfig()
-    tracker = SourceTracker(config, source_region(config.world, config.source), np.eye(2))
+    tracker = phasor_tracker()
     state = np.zeros(8)
     state[0:3], state[3:6] = rng.uniform([-20, -20, -30], [20, 20, -3]), rng.normal(0, 0.5, 3)
     covariance = np.diag([0.05**2] * 3 + [0.02**2] * 3 + [0.01**2] * 2)
     mobile, mobile_velocity = np.array([15.0, 0.0, -7.0]), np.array([0.0, 1.0, 0.0])
-    hx = tracker._hx(mobile, mobile_velocity)
-    f = config.filter
+
+    def h(points):  # row 0, the mean, anchors the multipath correction as in the UKF; resolved: the ripple is modelled
+        return tracker._sigma_measurements(points[None], np.array([0.05]), np.array([True]), mobile, mobile_velocity)[0][0]
+
+    f = tracker.config.filter
     wm, wc, spread = merwe_weights(8, f.alpha, f.beta, f.kappa)
-    sigma_z = hx(merwe_sigma_points(state, covariance, spread))
+    sigma_z = h(merwe_sigma_points(state, covariance, spread))
     mean = wm @ sigma_z
     deviation = sigma_z - mean
     ut_covariance = (deviation.T * wc) @ deviation
-    draws = rng.multivariate_normal(state, covariance, 20000)
-    z = hx(np.vstack([state, draws]))[1:]  # row 0, the mean, anchors the multipath correction as in the UKF
+    z = h(np.vstack([state, rng.multivariate_normal(state, covariance, 20000)]))[1:]
     mc_mean, mc_covariance = z.mean(axis=0), np.cov(z.T)
     mc_error = np.sqrt(np.diag(mc_covariance) / len(z))
     np.testing.assert_array_less(np.abs(mean - mc_mean), 4 * mc_error + 0.05 * np.sqrt(np.diag(mc_covariance)))
     np.testing.assert_allclose(np.diag(ut_covariance), np.diag(mc_covariance), rtol=0.1)
+
+
+def test_an_unresolved_hypothesis_takes_the_ripple_as_noise():
+    """Wider than the ripple: every sigma point gets the correction at the mean, and the correction's
+    spread over the sigma points (computed here from the phasor and direct models) is added to R."""
+    tracker = phasor_tracker()
+    state = np.zeros(8)
+    state[0:3], state[3:6] = [12.0, -6.0, -9.0], [0.3, 0.1, 0.0]
+    wide = np.diag([2.0**2] * 3 + [0.2**2] * 3 + [0.01**2] * 2)
+    f = tracker.config.filter
+    _, _, spread = merwe_weights(8, f.alpha, f.beta, f.kappa)
+    sigmas = merwe_sigma_points(state, wide, spread)
+    mobile, mobile_velocity = np.array([15.0, 0.0, -7.0]), np.array([0.0, 1.0, 0.0])
+    z, noise = tracker._sigma_measurements(sigmas[None], np.array([2.0]), np.array([False]), mobile, mobile_velocity)
+    direct = direct_measurement(sigmas[:, 0:3], sigmas[:, 3:6], mobile, mobile_velocity, FIXED)
+    correction = PHASOR(sigmas[:, 0:3], sigmas[:, 3:6], mobile, mobile_velocity, FIXED) - direct
+    correction[:, 0] = correction[0, 0] + geometry.wrap_to_period(correction[:, 0] - correction[0, 0], 1.5)
+    np.testing.assert_allclose(z[0] - sigmas[:, -2:], direct + correction[0], atol=1e-9)
+    deviation = correction[1:] - correction[0]
+    navigation = receiver_noise(receiver_jacobian(direct_measurement, state[0:3], state[3:6], mobile, mobile_velocity, FIXED), 0.05, 0.02)
+    np.testing.assert_allclose(noise[0], deviation.T @ deviation / (2 * spread) + navigation, rtol=1e-6)
+
+
+def test_the_multipath_spread_vanishes_without_reflections_and_is_bounded_with_them():
+    """The ripple's spread over the volume: zero when no image reflects, and an RD sd no larger than a
+    correction uniform over a wavelength (lambda / sqrt(12)) when they do."""
+    config = EnvConfig()
+    sources, receivers = source_region(config.world, config.source), receiver_region(config.world, config.receiver)
+    silent = Propagation(60.0, 0.0, 0.0, 2 * np.pi / 1.5)
+    np.testing.assert_allclose(multipath_spread(silent, sources, receivers, FIXED, 1.5, 1.5), 0.0, atol=1e-20)
+    spread = multipath_spread(Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5), sources, receivers, FIXED, 1.5, 1.5)
+    assert 0.01 < np.sqrt(spread[0, 0]) <= 1.5 / np.sqrt(12) and spread[1, 1] > 0.01

@@ -1,0 +1,133 @@
+"""Sliding-window MAP: the source state that best explains a whole window of measurements.
+
+The tracker's unscented filters are the fast path; they commit to one Gaussian each. Where they need
+a start, or stop explaining the data, :func:`fit_window` solves the window at once from several
+starts: the state of the filter's own motion model at the window's *last* sample, run back along the
+model over every sample, is fitted by Levenberg-Marquardt (batched over the starts) to
+
+    sum_k rho(|W_k (z_k - h(x(t_k)) - b)|^2) + |(x - m) / s|^2
+
+with ``W_k`` the whitener of R_eff at sample k for that start's own trajectory (the navigation term of
+the model's receiver Jacobian), ``rho`` the identity or, for data the model explains only roughly
+(multipath treated as noise), the soft-L1 loss ``2 (sqrt(1 + r^2) - 1)``, which lets a few samples
+near an interference null disagree without dragging the fit. The RD residual is taken modulo the
+wavelength where the burst says so (``Burst.residual_period``). The prior (mean ``m``, sd ``s``, an
+infinite sd for none) keeps the velocity, the turn rate or acceleration and the biases plausible.
+
+The Jacobian is by central differences of the model over the whole window (every model, every
+motion; a few dozen model evaluations per step), and the information ``J^T W J`` at the solution is
+the covariance a filter restarts with.
+
+References: K. Madsen, H. B. Nielsen, O. Tingleff, "Methods for non-linear least squares problems",
+2004 (the damping schedule); B. Triggs et al., "Bundle adjustment - a modern synthesis", 2000
+(robust costs by iteratively reweighted least squares).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from aasl_gym import geometry
+from aasl_gym.filters import MotionModel
+from aasl_gym.initializers import Burst, periodic_residual, trajectory_whitener, whiten
+
+STEP = 1e-4  # central-difference step in every state component (m, m/s, rad/s, m/s^2)
+MAX_POSITION_STEP = 5.0  # m: far from its basin a linearization is poor; no step moves further
+
+
+@dataclass(frozen=True)
+class WindowFit:
+    """Fitted states (C, n) at the window's last sample, their costs (C,) and information (C, n, n)."""
+
+    states: np.ndarray
+    costs: np.ndarray
+    information: np.ndarray
+
+
+def subsample(burst: Burst, samples: int) -> Burst:
+    """At most ``samples`` of the burst, evenly spaced and ending on its last sample (where the states are)."""
+    count = len(burst.times)
+    if count <= samples:
+        return burst
+    index = np.round(np.linspace(count - 1, 0, samples))[::-1].astype(int)
+    return replace(burst, **{name: getattr(burst, name)[index] for name in ("times", "measurements", "receiver_positions", "receiver_velocities")})
+
+
+def _predictions(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndarray:
+    """h along each state's trajectory plus its biases: (C, K, 2)."""
+    trajectory = model.trajectory(states, burst.times - burst.times[-1])
+    mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
+    z = burst.measurement_function(trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position)
+    return z + trajectory[..., -2:]
+
+
+def _wrap(difference: np.ndarray, burst: Burst) -> np.ndarray:
+    """A difference of two predictions, its RD modulo the period: a branch cut of the model is no slope."""
+    if burst.residual_period is not None:
+        difference[..., 0] = geometry.wrap_to_period(difference[..., 0], burst.residual_period)
+    return difference
+
+
+def _whiteners(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndarray:
+    trajectory = model.trajectory(states, burst.times - burst.times[-1])
+    return trajectory_whitener(burst, trajectory[..., 0:3], trajectory[..., 3:6])
+
+
+def _residuals(burst, model, states, white, prior_mean, prior_sd) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened measurement residuals (C, 2K) and prior residuals (C, n)."""
+    measurement = whiten(white, periodic_residual(burst.measurements[None] - _predictions(burst, model, states), burst))
+    return measurement.reshape(len(states), -1), (states - prior_mean) / prior_sd
+
+
+def _jacobian(burst, model, states, white) -> np.ndarray:
+    """d(whitened prediction) / d state by central differences: (C, 2K, n). Differences of the RD are
+    taken modulo the wavelength, so that a branch cut of the phasor model is no slope."""
+    columns = []
+    for j in range(model.dim):
+        shift = np.zeros(model.dim)
+        shift[j] = STEP
+        difference = _wrap(_predictions(burst, model, states + shift) - _predictions(burst, model, states - shift), burst)
+        columns.append(whiten(white, difference / (2 * STEP)).reshape(len(states), -1))
+    return np.stack(columns, axis=-1)
+
+
+def _loss(squared: np.ndarray, robust: bool) -> np.ndarray:
+    return 2 * (np.sqrt(1 + squared) - 1) if robust else squared
+
+
+def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean: np.ndarray, prior_sd: np.ndarray,
+               robust: bool = False, iterations: int = 8) -> WindowFit:
+    """Levenberg-Marquardt from each of ``states`` (C, n), the filter's layout at ``burst.times[-1]``.
+
+    ``prior_mean`` (C, n) or (n,), ``prior_sd`` (n,), ``np.inf`` where a component has no prior. The
+    whiteners follow each start's trajectory and are recomputed every iteration; the robust weights
+    (soft-L1) are those of the current residuals (iteratively reweighted least squares).
+    """
+    states = np.array(states, dtype=float)
+    prior_mean = np.broadcast_to(prior_mean, states.shape)
+    damping = np.full(len(states), 1e-3)
+    white = _whiteners(burst, model, states)
+    measurement, prior = _residuals(burst, model, states, white, prior_mean, prior_sd)
+    cost = np.sum(_loss(measurement**2, robust), axis=1) + np.sum(prior**2, axis=1)
+    for _ in range(iterations):
+        jacobian = -_jacobian(burst, model, states, white)
+        weights = 1 / np.sqrt(1 + measurement**2) if robust else np.ones_like(measurement)
+        normal = np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
+        gradient = np.einsum("cmi,cm->ci", jacobian, weights * measurement) + prior / prior_sd
+        scale = np.diagonal(normal, axis1=1, axis2=2)
+        step = -np.linalg.solve(normal + damping[:, None, None] * scale[:, None, :] * np.eye(model.dim), gradient[..., None])[..., 0]
+        step *= np.minimum(1.0, MAX_POSITION_STEP / np.maximum(np.linalg.norm(step[:, 0:3], axis=1), 1e-12))[:, None]
+        trial = states + step
+        trial_white = _whiteners(burst, model, trial)
+        trial_measurement, trial_prior = _residuals(burst, model, trial, trial_white, prior_mean, prior_sd)
+        trial_cost = np.sum(_loss(trial_measurement**2, robust), axis=1) + np.sum(trial_prior**2, axis=1)
+        better = trial_cost < cost
+        states[better], white[better], cost[better] = trial[better], trial_white[better], trial_cost[better]
+        measurement[better], prior[better] = trial_measurement[better], trial_prior[better]
+        damping = np.where(better, damping / 3, damping * 4)
+    jacobian = _jacobian(burst, model, states, white)
+    weights = 1 / np.sqrt(1 + measurement**2) if robust else np.ones_like(measurement)
+    information = np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
+    return WindowFit(states, cost, information)
