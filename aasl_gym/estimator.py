@@ -48,6 +48,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
@@ -113,6 +114,14 @@ class SourceTracker:
         # trusted beyond a whole period. Its RD residuals are taken modulo the wavelength (circular).
         self.correction_period = config.wavelength if f.multipath == "phasor" else None
         self.ripple = f.multipath == "phasor"
+        # The filter's measurement model (p, v, p_m, v_m, p_f) -> [RD, RRD], and the one windows (LC-MAP,
+        # re-seeding) are weighed with: the direct path where the filter's model has a ripple (their
+        # burst R then carries the ripple as noise, ``multipath_noise``). The direct path is the function
+        # itself, so that its receiver Jacobian takes the closed form.
+        self.measurement_function = (
+            direct_measurement if f.multipath == "none" else partial(multipath_measurement, f.multipath, self.propagation)
+        )
+        self.window_function = direct_measurement if self.ripple else self.measurement_function
         self.sigma_spread = merwe_weights(self.model.dim, f.alpha, f.beta, f.kappa)[2]
         # What the phasor model's correction adds when unresolved: LC-MAP and the re-seed windows weigh
         # every candidate with the direct path and this as extra noise (their candidates are metres apart).
@@ -145,14 +154,6 @@ class SourceTracker:
         self.reseeding = False  # an LC-MAP start keeps re-running LC-MAP on its growing window
         self.window_start = np.nan  # s, first measurement of that window
 
-    def measurement_function(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
-        return multipath_measurement(self.config.filter.multipath, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
-
-    def window_function(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
-        """The model windows (LC-MAP, re-seeding) are weighed with: the direct path where the filter's
-        model has a ripple (its burst R then carries the ripple as noise, ``multipath_noise``), else the filter's."""
-        model = "none" if self.ripple else self.config.filter.multipath
-        return multipath_measurement(model, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
 
     def _sigma_measurements(self, sigmas: np.ndarray, position_sd: np.ndarray, resolved: np.ndarray, mobile: np.ndarray,
                             mobile_velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -195,7 +196,7 @@ class SourceTracker:
 
     def _burst(self, length: int, fine: bool = False) -> Burst:
         """The last ``length`` measurements as a :class:`Burst`, weighed with the window model
-        (:meth:`window_function`, the ripple as noise) or, ``fine``, with the filter's own model."""
+        (``window_function``, the ripple as noise) or, ``fine``, with the filter's own model."""
         rows = list(self.history)[-length:]
         times, z, positions, velocities = (np.array(column) for column in list(zip(*rows))[:4])
         # An initializer weighs a burst with one R: the rows' own when they share it, else their mean

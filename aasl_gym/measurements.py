@@ -59,14 +59,30 @@ def multipath_measurement(model: str, propagation: Propagation, position, veloci
 RECEIVER_STEP = 1e-3  # m: central-difference step of the receiver Jacobian (a wavelength is 1.5 m)
 
 
+def direct_receiver_jacobian(position, velocity, mobile, mobile_velocity) -> np.ndarray:
+    """d[RD, RRD] / d[p_m, v_m] of the direct path in closed form, shape ``(..., 2, 6)``: dRD/dp_m = -u_m,
+    dRD/dv_m = 0, dRRD/dv_m = -u_m, dRRD/dp_m = -(I - u_m u_m^T)(v_s - v_m) / d_m."""
+    distance, unit = geometry.ranges(np.asarray(position, dtype=float), np.asarray(mobile, dtype=float))
+    relative = np.asarray(velocity, dtype=float) - mobile_velocity
+    along = np.einsum("...i,...i->...", relative, unit)
+    jacobian = np.zeros(np.broadcast_shapes(unit.shape, relative.shape)[:-1] + (2, 6))
+    jacobian[..., 0, :3] = -unit
+    jacobian[..., 1, 3:] = -unit
+    jacobian[..., 1, :3] = -(relative - unit * along[..., None]) / distance[..., None]
+    return jacobian
+
+
 def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
-    """d[RD, RRD] / d[p_m, v_m] of a measurement model, shape ``(..., 2, 6)``, by central differences
-    in the mobile hydrophone's position; the model is linear in its velocity (a range rate is), so a
-    one-sided difference there is exact. ``measurement_function`` is (p, v, p_m, v_m, p_f) -> (..., 2).
+    """d[RD, RRD] / d[p_m, v_m] of a measurement model, shape ``(..., 2, 6)``: the closed form for the
+    direct path, else central differences in the mobile hydrophone's position; the model is linear in
+    its velocity (a range rate is), so a one-sided difference there is exact. ``measurement_function``
+    is (p, v, p_m, v_m, p_f) -> (..., 2).
 
     Under multipath the apparent RD moves with the receiver's position far faster than the direct
     path's -u_m near an interference null, which is why R_eff needs the model's own H_r.
     """
+    if measurement_function is direct_measurement:
+        return direct_receiver_jacobian(position, velocity, mobile, mobile_velocity)
     position, velocity = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
     batch = np.broadcast_shapes(position.shape[:-1], velocity.shape[:-1], np.shape(mobile)[:-1], np.shape(mobile_velocity)[:-1])
     # Rows 0-5 move p_m by +-step along each axis, row 6 is the point itself, rows 7-9 add 1 m/s to v_m.
