@@ -213,7 +213,7 @@ class FilterConfig:
     ripple_lock_sd: float = 0.25  # m: phasor model only; above this position sd the ripple is treated as noise
     ripple_split_sd: float = 0.6  # m: a hypothesis this certain picks its point on the ripple from a lattice
     ripple_window: float = 10.0  # s of recent measurements that lattice is weighed on
-    recovery_inflation: float = 4.0  # a re-seed because the filter turned inconsistent multiplies its covariance by this
+    recovery_inflation: float = 4.0  # an inconsistent filter re-seeds with its covariance times this
     window_fit: bool = True  # re-seeds refine their best hypotheses by a sliding-window MAP (aasl_gym.window)
 
     def __post_init__(self) -> None:
@@ -252,7 +252,7 @@ class InitializerConfig:
     covariance_inflation: float = 1.0  # lcmap's local-information covariance is multiplied by this
     hypotheses: int = 12  # lcmap: distinct candidates (best of each sheet first) that each start a UKF; 1 = one filter
     reseed_interval: float = 5.0  # s; after an lcmap start, lcmap re-runs on the growing window this often (0 = never)
-    reseed_until: float = 60.0  # s, longest such window: no scheduled re-seed after it; recovery searches the last this many s
+    reseed_until: float = 60.0  # s, longest such window (no scheduled re-seed after it; recovery looks this far back)
     max_turn_rate: float = 0.12  # rad/s; lcmap with a ctrv filter fits turns on a grid over +- this
     turn_rate_steps: int = 9  # values in that grid (odd keeps 0, the straight line)
     acceleration_prior_sd: float = 0.01  # m/s^2; lcmap with a ca filter fits the acceleration under this prior

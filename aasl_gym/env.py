@@ -99,10 +99,11 @@ class AASLEnv(gym.Env):
     ``source.confined`` for a source that turns back at the region's edge. LC-MAP starts a bank of
     UKFs, one per likely whole-period sheet, and re-runs on its growing window (fitting the filter's
     motion model) for the first 60 s, and again on the recent window whenever the likeliest filter
-    stops explaining the data; the reported estimate is the likeliest filter's (``aasl_gym.estimator``). ``measurement.mode`` chooses how [RD, RRD] is made: ``signal``, the
-    default (the acoustic front end of ``aasl_gym.acoustics`` synthesizes and processes both channels
-    for a 0.2 s frame each step, and the filter's R follows each frame's measured SNR), or
-    ``geometric`` (the geometry plus Gaussian noise, as in the reference paper's study).
+    stops explaining the data; the reported estimate is the likeliest filter's (``aasl_gym.estimator``).
+    ``measurement.mode`` chooses how [RD, RRD] is made: ``signal``, the default (the acoustic front end
+    of ``aasl_gym.acoustics`` synthesizes and processes both channels for a 0.2 s frame each step, and
+    the filter's R follows each frame's measured SNR), or ``geometric`` (the geometry plus Gaussian
+    noise, as in the reference paper's study).
 
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: a velocity command scaled by ``receiver.max_speed`` (1.5 m/s). In

@@ -56,8 +56,12 @@ from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
 from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_weights
 from aasl_gym.fisher import information_prior
-from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, trajectory_whitener, whiten
-from aasl_gym.measurements import Propagation, direct_measurement, multipath_measurement, multipath_spread, receiver_jacobian, receiver_noise
+from aasl_gym.initializers import (
+    Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, trajectory_whitener, whiten,
+)
+from aasl_gym.measurements import (
+    Propagation, direct_measurement, multipath_measurement, multipath_spread, receiver_jacobian, receiver_noise,
+)
 from aasl_gym.motion import Box, receiver_region
 from aasl_gym.window import fit_window, subsample
 
@@ -175,15 +179,18 @@ class SourceTracker:
             direct = direct_measurement(position, velocity, mobile, mobile_velocity, self.fixed)
             correction = z - direct
             centre = correction[:, :1]
-            correction[..., 0] = centre[..., 0] + geometry.wrap_to_period(correction[..., 0] - centre[..., 0], self.correction_period)
+            offset = geometry.wrap_to_period(correction[..., 0] - centre[..., 0], self.correction_period)
+            correction[..., 0] = centre[..., 0] + offset
             z = direct + correction
             coarse = (position_sd > self.config.filter.ripple_lock_sd) & ~resolved
             deviation = correction[coarse, 1:] - centre[coarse]
-            noise[coarse] = np.einsum("hsi,hsj->hij", deviation, deviation) / (2 * self.sigma_spread)  # the Merwe weights of rows 1..2n
+            # The Merwe weights of rows 1..2n, 1 / (2 (n + lambda)), about the central point.
+            noise[coarse] = np.einsum("hsi,hsj->hij", deviation, deviation) / (2 * self.sigma_spread)
             z[coarse] = direct[coarse] + centre[coarse]
         for model, rows in ((self.measurement_function, ~coarse), (direct_measurement, coarse)):
             if rows.any():
-                jacobian = receiver_jacobian(model, position[rows, 0], velocity[rows, 0], mobile, mobile_velocity, self.fixed)
+                at_mean = position[rows, 0], velocity[rows, 0]
+                jacobian = receiver_jacobian(model, *at_mean, mobile, mobile_velocity, self.fixed)
                 noise[rows] += receiver_noise(jacobian, *self.navigation_sd)
         return z + sigmas[..., -2:], noise
 
@@ -274,7 +281,8 @@ class SourceTracker:
         predicted = burst.measurement_function(
             position, velocity, burst.receiver_positions[None], burst.receiver_velocities[None], self.fixed
         ) + trajectory[..., -2:]
-        whitened = whiten(trajectory_whitener(burst, position, velocity), self.residual(burst.measurements[None], predicted))
+        white = trajectory_whitener(burst, position, velocity)
+        whitened = whiten(white, self.residual(burst.measurements[None], predicted))
         velocity_prior = np.sum(states[:, 3:6] ** 2, axis=1) / self.config.initializer.velocity_prior_sd**2
         squared = whitened**2
         return np.sum(2 * (np.sqrt(1 + squared) - 1) if burst.robust else squared, axis=(1, 2)) + velocity_prior
@@ -301,15 +309,11 @@ class SourceTracker:
         states = np.array([x for x, _ in candidates])
         base = states[:, self.model.base_index]
         chi_square = self._window_chi_square(burst, states)
-        separation, tolerance = self.reinitializer.separation, 0.5 * self.wavelength if self.wavelength else np.inf
-        duplicate = [
-            self.ripple and i >= len(running) and any(
-                abs(base[i, 6] - base[j, 6]) < tolerance and np.linalg.norm(base[i, :3] - base[j, :3]) < separation for j in range(len(running))
-            )
-            for i in range(len(candidates))
-        ]
+        separation = self.reinitializer.separation
+        duplicate = self._next_to_running(base, len(running)) if self.ripple else np.zeros(len(candidates), dtype=bool)
         order = [i for i in np.argsort(chi_square, kind="stable") if np.isfinite(chi_square[i]) and not duplicate[i]]
-        kept = distinct_hypotheses(order, base[:, :3], base[:, 6], self.config.initializer.hypotheses, separation, self.wavelength)
+        limit = self.config.initializer.hypotheses
+        kept = distinct_hypotheses(order, base[:, :3], base[:, 6], limit, separation, self.wavelength)
         if not kept:
             return False
         if not self.config.filter.window_fit:
@@ -320,6 +324,16 @@ class SourceTracker:
         for hypothesis, fitted in zip(self.bank, fits):
             hypothesis.resolved = fitted[4]
         return kept[fits[0][0]] >= len(running)
+
+    def _next_to_running(self, base: np.ndarray, running: int) -> np.ndarray:
+        """Which of the states ``base`` (H, 8) after the first ``running`` lie on a running one's sheet
+        (range biases within half a wavelength) and within LC-MAP's ``separation`` of it."""
+        tolerance = 0.5 * self.wavelength if self.wavelength else np.inf
+        same_sheet = np.abs(base[:, None, 6] - base[None, :running, 6]) < tolerance
+        near = np.linalg.norm(base[:, None, :3] - base[None, :running, :3], axis=-1) < self.reinitializer.separation
+        duplicate = np.any(same_sheet & near, axis=1)
+        duplicate[:running] = False
+        return duplicate
 
     def _fit_window(self, length: int, states: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
         """The sliding-window MAP (:func:`aasl_gym.window.fit_window`) of the last ``length`` samples
@@ -355,7 +369,8 @@ class SourceTracker:
             return coarse
         fine_covariances = _covariances(fine.information, ini.covariance_inflation)
         passed = passed[np.argsort(fine.costs[passed], kind="stable")]
-        resolved = [(top[i], fine.states[i], fine_covariances[i], -0.5 * (fine.costs[i] - fine.costs[passed[0]]), True) for i in passed]
+        best_cost = fine.costs[passed[0]]
+        resolved = [(top[i], fine.states[i], fine_covariances[i], -0.5 * (fine.costs[i] - best_cost), True) for i in passed]
         # The coarse fits that were not resolved follow, half the pruning ratio behind the resolved ones.
         behind = -0.5 * self.config.filter.prune_log_ratio
         return resolved + [(i, x, p, w + behind, False) for i, x, p, w, _ in coarse if i not in top[passed]]
@@ -377,7 +392,8 @@ class SourceTracker:
             return False
         return float(np.mean(hypothesis.nis)) > self.config.filter.divergence_nis
 
-    def _assimilate(self, dt: float, z: np.ndarray, noise: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, time: float) -> None:
+    def _assimilate(self, dt: float, z: np.ndarray, noise: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray,
+                    time: float) -> None:
         """Predict every hypothesis, then update it with R_ac (``noise``) plus what its model adds (see
         :meth:`_sigma_measurements`, which serves the whole bank in one call); drop those whose
         covariance breaks or that turn implausible, and - for the paper's single filter, which has no
@@ -407,7 +423,8 @@ class SourceTracker:
             hypothesis.log_weight += ukf.log_likelihood
             hypothesis.nis.append(ukf.nis)
             if not (self._implausible(ukf, time) or (not self.recovers and self._inconsistent(hypothesis, time))):
-                if self.ripple and not hypothesis.resolved and self._position_sd(ukf.P) < self.config.filter.ripple_split_sd:
+                within_reach = self._position_sd(ukf.P) < self.config.filter.ripple_split_sd
+                if self.ripple and not hypothesis.resolved and within_reach:
                     hypothesis = self._resolve_ripple(hypothesis, time)
                 kept.append(hypothesis)
         self.bank = kept

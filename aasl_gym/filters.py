@@ -125,8 +125,9 @@ class CoordinatedTurn(MotionModel):
 
     def transition(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         out = states.copy()
-        step = np.asarray(dt)
-        displacement, velocity = coordinated_turn_displacement(states[..., 3:6], states[..., 6], step[..., 0] if step.ndim else step)
+        step = np.asarray(dt)  # a scalar, or (..., 1) beside the states (see :meth:`MotionModel.trajectory`)
+        turn_step = step[..., 0] if step.ndim else step
+        displacement, velocity = coordinated_turn_displacement(states[..., 3:6], states[..., 6], turn_step)
         out[..., 0:3] += displacement
         out[..., 3:6] = velocity
         return out

@@ -278,9 +278,8 @@ def inverse_cholesky(covariance: np.ndarray) -> np.ndarray:
 def trajectory_whitener(burst: Burst, trajectory: np.ndarray, trajectory_velocity: np.ndarray) -> np.ndarray:
     """W (C, K, 2, 2) for R_eff = R_ac + H_r Sigma_r H_r^T of every candidate at every sample, H_r the
     burst model's own receiver Jacobian along the candidate's trajectory (C, K, 3)."""
-    jacobian = receiver_jacobian(
-        burst.measurement_function, trajectory, trajectory_velocity, burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position
-    )
+    receivers = burst.receiver_positions[None], burst.receiver_velocities[None]
+    jacobian = receiver_jacobian(burst.measurement_function, trajectory, trajectory_velocity, *receivers, burst.fixed_position)
     return inverse_cholesky(burst.noise_covariance + receiver_noise(jacobian, *burst.navigation_sd))
 
 

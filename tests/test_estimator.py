@@ -106,3 +106,25 @@ def test_the_tracker_recovers_a_lost_source_late_in_the_episode():
             _, _, _, _, info = env.step(np.zeros(3))
             errors.append(info["position_error"])
         assert max(errors[100:]) < 1.0, seed
+
+
+def test_a_converged_filter_is_consistent():
+    """Free field, static sources, once converged: the position NEES (3 dof) and the NIS (2 dof) lie in
+    their two-sided 95 % chi-square intervals on most steps (tuning seeds 1000-1005: 93 % and 94 %;
+    benchmarks/consistency.py measures more) and the NIS averages about 2."""
+    from scipy.stats import chi2
+
+    env = AASLEnv(STUDY.replace(measurement={"mode": "geometric"}), patrol="helix")
+    nees, nis = [], []
+    for seed in (1000, 1001):
+        env.reset(seed=seed)
+        for step in range(600):
+            _, _, _, _, info = env.step(np.zeros(3))
+            if step >= 300 and not info["reinitialized"]:
+                error = info["estimate_position"] - info["source_position"]
+                nees.append(error @ np.linalg.solve(info["position_covariance"], error))
+                nis.append(env.tracker.ukf.nis)
+        assert info["position_error"] < 1.0
+    inside = lambda values, dof: np.mean((np.array(values) >= chi2.ppf(0.025, dof)) & (np.array(values) <= chi2.ppf(0.975, dof)))  # noqa: E731
+    assert inside(nees, 3) > 0.8 and inside(nis, 2) > 0.85
+    assert 1.5 < np.mean(nis) < 2.6
