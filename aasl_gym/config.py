@@ -207,7 +207,7 @@ class FilterConfig:
     kappa: float = 0.0
     divergence_window: float = 5.0  # s, window of the moving-average NIS
     divergence_nis: float = 8.0  # mean NIS over the window above this (2 expected) = inconsistent: search again
-    reinit_window: float = 10.0  # s of recent measurements LC-MAP re-starts the single filter on (no re-seeding)
+    reinit_window: float = 10.0  # s of recent measurements a recovery or re-start searches
     reinit_cooldown: float = 5.0  # s after a (re)start or re-seed before consistency is tested again
     prune_log_ratio: float = 12.0  # a hypothesis whose log-likelihood trails the best's by this is dropped
     ripple_lock_sd: float = 0.25  # m: phasor model only; above this position sd the ripple is treated as noise
@@ -252,7 +252,7 @@ class InitializerConfig:
     covariance_inflation: float = 1.0  # lcmap's local-information covariance is multiplied by this
     hypotheses: int = 12  # lcmap: distinct candidates (best of each sheet first) that each start a UKF; 1 = one filter
     reseed_interval: float = 5.0  # s; after an lcmap start, lcmap re-runs on the growing window this often (0 = never)
-    reseed_until: float = 60.0  # s, longest such window (no scheduled re-seed after it; recovery looks this far back)
+    reseed_until: float = 60.0  # s, longest such window; no scheduled re-seed after it
     max_turn_rate: float = 0.12  # rad/s; lcmap with a ctrv filter fits turns on a grid over +- this
     turn_rate_steps: int = 9  # values in that grid (odd keeps 0, the straight line)
     acceleration_prior_sd: float = 0.01  # m/s^2; lcmap with a ca filter fits the acceleration under this prior
