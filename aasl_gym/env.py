@@ -13,7 +13,7 @@ from gymnasium import spaces
 from aasl_gym import metrics, rewards
 from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_config, to_dict
 from aasl_gym.estimator import SourceTracker
-from aasl_gym.fisher import InformationTracker, information_prior, measurement_jacobian
+from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.measurements import GeometricSensor, Propagation, SignalSensor, direct_measurement, model_snr, navigation_covariance
 from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
@@ -222,7 +222,6 @@ class AASLEnv(gym.Env):
         self.tracker = SourceTracker(cfg, self.source_region, self.acoustic_covariance)
         self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
-        self.prior_mean, self.prior_covariance = information_prior(cfg)
         self.surface_depth = cfg.receiver.surface_depth if cfg.receiver.kind == "surface" else None
         self.planner = GreedyPlanner(cfg) if patrol == "greedy" else None
         self._renderer = None
@@ -243,7 +242,7 @@ class AASLEnv(gym.Env):
         self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, self.dt)
         self.sensor.reset(rng)
         self.tracker.reset()
-        self.information.reset(self.prior_covariance)
+        self.information.reset(self.tracker.prior_covariance)
         if self.planner is not None:
             self.planner.reset()
         self._time = 0.0

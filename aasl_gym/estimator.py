@@ -59,14 +59,12 @@ from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
 from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_weights
 from aasl_gym.fisher import information_prior
-from aasl_gym.initializers import (
-    Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, trajectory_whitener, whiten,
-)
+from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, robust_loss
 from aasl_gym.measurements import (
     Propagation, direct_measurement, multipath_measurement, multipath_spread, receiver_jacobian, receiver_noise,
 )
 from aasl_gym.motion import Box, receiver_region
-from aasl_gym.window import fit_window, subsample
+from aasl_gym.window import fit_window, subsample, whitened_residuals
 
 logger = logging.getLogger(__name__)
 
@@ -120,7 +118,7 @@ class SourceTracker:
         # wavelength in one step near a null, so neither it nor the unwrapped measured track can be
         # trusted beyond a whole period. Its RD residuals are taken modulo the wavelength (circular).
         self.correction_period = config.wavelength if f.multipath == "phasor" else None
-        self.ripple = f.multipath == "phasor"
+        self.ripple = self.correction_period is not None
         # The filter's measurement model (p, v, p_m, v_m, p_f) -> [RD, RRD], and the one windows (LC-MAP,
         # re-seeding) are weighed with: the direct path where the filter's model has a ripple (their
         # burst R then carries the ripple as noise, ``multipath_noise``). The direct path is the function
@@ -269,26 +267,22 @@ class SourceTracker:
             and time - self.last_reseed >= ini.reseed_interval - 1e-9
         )
 
+    def _samples_since(self, start: float) -> int:
+        """How many of the kept measurements were taken at or after ``start`` (s)."""
+        return sum(1 for row in self.history if row[0] >= start - 1e-9)
+
     def _window_length(self, time: float) -> int:
         """Samples of the re-seed window: since the LC-MAP start, at most the last ``reseed_until`` seconds."""
-        start = max(self.window_start, time - self.config.initializer.reseed_until)
-        return sum(1 for row in self.history if row[0] >= start - 1e-9)
+        return self._samples_since(max(self.window_start, time - self.config.initializer.reseed_until))
 
     def _window_chi_square(self, burst: Burst, states: np.ndarray) -> np.ndarray:
         """Chi-square of ``burst`` for model states (H, dim) given at its last time, each run back
         along its own motion model: puts running filters and fresh candidates on one scale. Each sample
         is weighed with the state's own R_eff there (the navigation term depends on where the source is);
         a robust burst sums the soft-L1 loss instead of the squares."""
-        trajectory = self.model.trajectory(states, burst.times - burst.times[-1])  # (H, K, dim)
-        position, velocity = trajectory[..., 0:3], trajectory[..., 3:6]
-        predicted = burst.measurement_function(
-            position, velocity, burst.receiver_positions[None], burst.receiver_velocities[None], self.fixed
-        ) + trajectory[..., -2:]
-        white = trajectory_whitener(burst, position, velocity)
-        whitened = whiten(white, self.residual(burst.measurements[None], predicted))
+        whitened = whitened_residuals(burst, self.model, states)
         velocity_prior = np.sum(states[:, 3:6] ** 2, axis=1) / self.config.initializer.velocity_prior_sd**2
-        squared = whitened**2
-        return np.sum(2 * (np.sqrt(1 + squared) - 1) if burst.robust else squared, axis=(1, 2)) + velocity_prior
+        return np.sum(robust_loss(whitened**2, burst.robust), axis=(1, 2)) + velocity_prior
 
     def _reseed(self, time: float, rng: np.random.Generator, inflation: float = 1.0, length: int | None = None) -> bool:
         """Run LC-MAP on the last ``length`` samples (the growing window of :meth:`_window_length` if
@@ -413,9 +407,10 @@ class SourceTracker:
             self.bank = []
             return
         sigmas = np.stack([h.ukf.sigmas_f for h in predicted])
-        position_sd = np.array([self._position_sd(h.ukf.P) for h in predicted])
-        resolved = np.array([h.resolved for h in predicted])
-        sigma_z, extra = self._sigma_measurements(sigmas, position_sd, resolved, mobile, mobile_velocity)
+        unresolved = [self.ripple and not h.resolved for h in predicted]
+        # Only a hypothesis that has yet to resolve the ripple needs its position sd (an eigen-decomposition).
+        position_sd = np.array([self._position_sd(h.ukf.P) if u else 0.0 for h, u in zip(predicted, unresolved)])
+        sigma_z, extra = self._sigma_measurements(sigmas, position_sd, ~np.array(unresolved), mobile, mobile_velocity)
         kept = []
         for hypothesis, predicted_z, extra_noise in zip(predicted, sigma_z, extra):
             ukf = hypothesis.ukf
@@ -427,8 +422,7 @@ class SourceTracker:
             hypothesis.log_weight += ukf.log_likelihood
             hypothesis.nis.append(ukf.nis)
             if not (self._implausible(ukf, time) or (not self.recovers and self._inconsistent(hypothesis, time))):
-                within_reach = self._position_sd(ukf.P) < self.config.filter.ripple_split_sd
-                if self.ripple and not hypothesis.resolved and within_reach:
+                if self.ripple and not hypothesis.resolved and self._position_sd(ukf.P) < self.config.filter.ripple_split_sd:
                     hypothesis = self._resolve_ripple(hypothesis, time)
                 kept.append(hypothesis)
         self.bank = kept
@@ -444,8 +438,8 @@ class SourceTracker:
         steps = np.stack(np.meshgrid(*[np.array([-1.0, 0.0, 1.0])] * 3, indexing="ij"), -1).reshape(-1, 3)
         states = np.repeat(ukf.x[None], len(steps), axis=0)
         states[:, 0:3] += (steps * np.sqrt(variances)) @ axes.T
-        length = sum(1 for row in self.history if row[0] >= time - self.config.filter.ripple_window - 1e-9)
-        chi_square = self._window_chi_square(self._burst(length, fine=True), states)
+        burst = self._burst(self._samples_since(time - self.config.filter.ripple_window), fine=True)
+        chi_square = self._window_chi_square(burst, states)
         best = int(np.argmin(chi_square))
         covariance = ukf.P.copy()
         shrink = axes @ np.diag(np.full(3, 1 / 3)) @ axes.T  # the cell: a third of the sd along each axis
@@ -489,8 +483,7 @@ class SourceTracker:
         if not self.bank:
             logger.debug("every hypothesis diverged at t = %.1f s; re-initializing with LC-MAP", time)
             self.reinitializations += 1
-            length = self.reinit_length
-            self._start(self._lcmap_at(time), min(max(length, 2), len(self.history)), rng)
+            self._start(self._lcmap_at(time), min(self.reinit_length, len(self.history)), rng)
             return TrackerOutput(True, True, nan2, nan2)
         self._prune()
         jumped = False

@@ -260,6 +260,16 @@ def periodic_residual(residual: np.ndarray, burst: Burst) -> np.ndarray:
     return residual
 
 
+def robust_loss(squared: np.ndarray, robust: bool) -> np.ndarray:
+    """The loss of squared whitened residuals: themselves, or (``robust``) soft-L1, 2 (sqrt(1 + r^2) - 1)."""
+    return 2 * (np.sqrt(1 + squared) - 1) if robust else squared
+
+
+def robust_weights(residual: np.ndarray, robust: bool) -> np.ndarray:
+    """Iteratively reweighted least squares weights of whitened residuals: 1 / sqrt(1 + r^2), or ones."""
+    return 1 / np.sqrt(1 + residual**2) if robust else np.ones_like(residual)
+
+
 def whitener(burst: Burst) -> np.ndarray:
     """W (2, 2) with W^T W = R^-1 for the burst's uniform R: whitened residuals W r have unit covariance."""
     return np.linalg.cholesky(np.linalg.inv(burst.uniform_covariance)).T
@@ -330,7 +340,7 @@ def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarra
     if not burst.robust:
         return np.sum(whitened**2, axis=(1, 2)), whitened, white
     root_weight = (1 + whitened**2) ** -0.25
-    cost = np.sum(2 * (np.sqrt(1 + whitened**2) - 1), axis=(1, 2))
+    cost = np.sum(robust_loss(whitened**2, True), axis=(1, 2))
     return cost, root_weight * whitened, root_weight[..., None] * np.broadcast_to(white, whitened.shape + (2,))
 
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from aasl_gym import geometry
 from aasl_gym.filters import MotionModel
-from aasl_gym.initializers import Burst, periodic_residual, trajectory_whitener, whiten
+from aasl_gym.initializers import Burst, periodic_residual, robust_loss, robust_weights, trajectory_whitener, whiten
 
 STEP = 1e-4  # central-difference step in every state component (m, m/s, rad/s, m/s^2)
 MAX_POSITION_STEP = 5.0  # m: far from its basin a linearization is poor; no step moves further
@@ -55,29 +55,34 @@ def subsample(burst: Burst, samples: int) -> Burst:
     return replace(burst, **{name: getattr(burst, name)[index] for name in ("times", "measurements", "receiver_positions", "receiver_velocities")})
 
 
-def _predictions(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndarray:
-    """h along each state's trajectory plus its biases: (C, K, 2)."""
-    trajectory = model.trajectory(states, burst.times - burst.times[-1])
+def _trajectory(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndarray:
+    """Each state (C, n), given at the burst's last sample, run back to every sample: (C, K, n)."""
+    return model.trajectory(states, burst.times - burst.times[-1])
+
+
+def _predictions(burst: Burst, trajectory: np.ndarray) -> np.ndarray:
+    """h along trajectories (C, K, n) plus their biases: (C, K, 2)."""
     mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
     z = burst.measurement_function(trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position)
     return z + trajectory[..., -2:]
 
 
-def _wrap(difference: np.ndarray, burst: Burst) -> np.ndarray:
-    """A difference of two predictions, its RD modulo the period: a branch cut of the model is no slope."""
-    if burst.residual_period is not None:
-        difference[..., 0] = geometry.wrap_to_period(difference[..., 0], burst.residual_period)
-    return difference
-
-
-def _whiteners(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndarray:
-    trajectory = model.trajectory(states, burst.times - burst.times[-1])
+def _whiteners(burst: Burst, trajectory: np.ndarray) -> np.ndarray:
     return trajectory_whitener(burst, trajectory[..., 0:3], trajectory[..., 3:6])
+
+
+def whitened_residuals(burst: Burst, model: MotionModel, states: np.ndarray, white: np.ndarray | None = None) -> np.ndarray:
+    """W_k (z_k - h(x(t_k)) - b) of each state (C, n) at every sample: (C, K, 2), the RD taken as the
+    burst says (:func:`~aasl_gym.initializers.periodic_residual`), ``white`` each trajectory's own
+    R_eff whitener unless given."""
+    trajectory = _trajectory(burst, model, states)
+    white = _whiteners(burst, trajectory) if white is None else white
+    return whiten(white, periodic_residual(burst.measurements[None] - _predictions(burst, trajectory), burst))
 
 
 def _residuals(burst, model, states, white, prior_mean, prior_sd) -> tuple[np.ndarray, np.ndarray]:
     """Whitened measurement residuals (C, 2K) and prior residuals (C, n)."""
-    measurement = whiten(white, periodic_residual(burst.measurements[None] - _predictions(burst, model, states), burst))
+    measurement = whitened_residuals(burst, model, states, white)
     return measurement.reshape(len(states), -1), (states - prior_mean) / prior_sd
 
 
@@ -88,13 +93,10 @@ def _jacobian(burst, model, states, white) -> np.ndarray:
     for j in range(model.dim):
         shift = np.zeros(model.dim)
         shift[j] = STEP
-        difference = _wrap(_predictions(burst, model, states + shift) - _predictions(burst, model, states - shift), burst)
+        ahead, behind = (_predictions(burst, _trajectory(burst, model, states + sign * shift)) for sign in (1, -1))
+        difference = periodic_residual(ahead - behind, burst)
         columns.append(whiten(white, difference / (2 * STEP)).reshape(len(states), -1))
     return np.stack(columns, axis=-1)
-
-
-def _loss(squared: np.ndarray, robust: bool) -> np.ndarray:
-    return 2 * (np.sqrt(1 + squared) - 1) if robust else squared
 
 
 def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean: np.ndarray, prior_sd: np.ndarray,
@@ -108,26 +110,26 @@ def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean:
     states = np.array(states, dtype=float)
     prior_mean = np.broadcast_to(prior_mean, states.shape)
     damping = np.full(len(states), 1e-3)
-    white = _whiteners(burst, model, states)
+    white = _whiteners(burst, _trajectory(burst, model, states))
     measurement, prior = _residuals(burst, model, states, white, prior_mean, prior_sd)
-    cost = np.sum(_loss(measurement**2, robust), axis=1) + np.sum(prior**2, axis=1)
+    cost = np.sum(robust_loss(measurement**2, robust), axis=1) + np.sum(prior**2, axis=1)
     for _ in range(iterations):
         jacobian = -_jacobian(burst, model, states, white)
-        weights = 1 / np.sqrt(1 + measurement**2) if robust else np.ones_like(measurement)
+        weights = robust_weights(measurement, robust)
         normal = np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
         gradient = np.einsum("cmi,cm->ci", jacobian, weights * measurement) + prior / prior_sd
         scale = np.diagonal(normal, axis1=1, axis2=2)
         step = -np.linalg.solve(normal + damping[:, None, None] * scale[:, None, :] * np.eye(model.dim), gradient[..., None])[..., 0]
         step *= np.minimum(1.0, MAX_POSITION_STEP / np.maximum(np.linalg.norm(step[:, 0:3], axis=1), 1e-12))[:, None]
         trial = states + step
-        trial_white = _whiteners(burst, model, trial)
+        trial_white = _whiteners(burst, _trajectory(burst, model, trial))
         trial_measurement, trial_prior = _residuals(burst, model, trial, trial_white, prior_mean, prior_sd)
-        trial_cost = np.sum(_loss(trial_measurement**2, robust), axis=1) + np.sum(trial_prior**2, axis=1)
+        trial_cost = np.sum(robust_loss(trial_measurement**2, robust), axis=1) + np.sum(trial_prior**2, axis=1)
         better = trial_cost < cost
         states[better], white[better], cost[better] = trial[better], trial_white[better], trial_cost[better]
         measurement[better], prior[better] = trial_measurement[better], trial_prior[better]
         damping = np.where(better, damping / 3, damping * 4)
     jacobian = _jacobian(burst, model, states, white)
-    weights = 1 / np.sqrt(1 + measurement**2) if robust else np.ones_like(measurement)
+    weights = robust_weights(measurement, robust)
     information = np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
     return WindowFit(states, cost, information)

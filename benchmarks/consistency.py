@@ -17,7 +17,7 @@ from multiprocessing import Pool
 import numpy as np
 from scipy.stats import chi2
 
-from tracker_check import MATCHED, WORLDS
+from tracker_check import MATCHED, WORLDS, parse_runs
 
 NEES_BOUNDS = chi2.ppf([0.025, 0.975], 3)
 NIS_BOUNDS = chi2.ppf([0.025, 0.975], 2)
@@ -53,12 +53,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="WORLD:MOTIONS:FIRST_SEED:COUNT, WORLD in " + ", ".join(WORLDS))
     args = parser.parse_args()
-    jobs = []
-    for run in args.runs:
-        world, motions, first, count = run.split(":")
-        jobs += [(world, motion, seed) for motion in motions.split(",") for seed in range(int(first), int(first) + int(count))]
     with Pool(2) as pool:
-        rows = pool.map(episode, jobs, chunksize=1)
+        rows = pool.map(episode, parse_runs(args.runs), chunksize=1)
     for world in WORLDS:
         for motion in MATCHED:
             group = [row for row in rows if row[0] == world and row[1] == motion]

@@ -47,6 +47,17 @@ def episode(job: tuple) -> dict:
     }
 
 
+def parse_runs(runs: list[str]) -> list[tuple[str, str, int]]:
+    """(world, motion, seed) for each WORLD:MOTIONS:FIRST_SEED:COUNT."""
+    jobs = []
+    for run in runs:
+        world, motions, first, count = run.split(":")
+        if world not in WORLDS:
+            raise SystemExit(f"{run!r}: unknown world {world!r}; allowed: {list(WORLDS)}")
+        jobs += [(world, motion, seed) for motion in motions.split(",") for seed in range(int(first), int(first) + int(count))]
+    return jobs
+
+
 def parse_overrides(pairs: list[str]) -> dict:
     overrides: dict = {}
     for pair in pairs:
@@ -64,12 +75,7 @@ def main() -> None:
     parser.add_argument("--set", nargs="*", default=[], help="SECTION.KEY=JSON config overrides")
     args = parser.parse_args()
     overrides = parse_overrides(args.set)
-    jobs = []
-    for run in args.runs:
-        world, motions, first, count = run.split(":")
-        if world not in WORLDS:
-            raise SystemExit(f"{run!r}: unknown world {world!r}; allowed: {list(WORLDS)}")
-        jobs += [(world, motion, seed, overrides) for motion in motions.split(",") for seed in range(int(first), int(first) + int(count))]
+    jobs = [(*job, overrides) for job in parse_runs(args.runs)]
     with Pool(2) as pool:
         rows = pool.map(episode, jobs, chunksize=1)
     for world in WORLDS:
