@@ -43,7 +43,6 @@ import numpy as np
 
 from aasl_gym import geometry
 from aasl_gym.config import InitializerConfig
-from aasl_gym.fisher import measurement_jacobian
 from aasl_gym.measurements import receiver_jacobian, receiver_noise
 from aasl_gym.motion import Box, coordinated_turn_displacement
 
@@ -173,14 +172,18 @@ class CandidateMotion:
             trajectory, velocity = trajectory + 0.5 * a * tau**2, velocity + a * tau
         return trajectory, velocity
 
-    def chain(self, local: np.ndarray, with_acceleration: bool = False) -> np.ndarray:
+    def chain(self, local: np.ndarray, with_acceleration: bool = False, overwrite: bool = False) -> np.ndarray:
         """d z / d[p, v] (and d[a], with ``with_acceleration``) at the first sample from the local
-        Jacobian d z / d[p(tau), v(tau)] (C, K, 2, 6): (C, K, 2, 6 or 9)."""
+        Jacobian d z / d[p(tau), v(tau)] (C, K, 2, 6): (C, K, 2, 6 or 9). ``overwrite``: ``local`` may
+        be changed in place (a straight line's chain then needs no copy)."""
         jac_p, jac_v = local[..., 0:3], local[..., 3:6]
         tau = self.tau[:, None, None]
         if self.straight:
-            out = local.copy()
+            acceleration_columns = 0.5 * jac_p * tau**2 + jac_v * tau if with_acceleration else None
+            out = local if overwrite else local.copy()
             out[..., 3:6] += jac_p * tau
+            if with_acceleration:
+                return np.concatenate([out, acceleration_columns], axis=-1)
         else:
             s, c, cos, sin = (a[..., None] for a in (self.s, self.c, self.cos, self.sin))
             out = np.empty_like(local)
@@ -405,8 +408,9 @@ class LCMAPInitializer:
                    with_acceleration: bool = False) -> np.ndarray:
         """d[RD, RRD]_k / d[p(t0), v(t0) (, a)] for every candidate and burst sample: (C, K, 2, 6 or 9)."""
         trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
-        local = measurement_jacobian(trajectory, trajectory_velocity, burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position)
-        return motion.chain(local[..., :6], with_acceleration)
+        # The [p, v] columns of fisher.measurement_jacobian, without copying them into its 8 columns first.
+        local = geometry.direct_jacobian(trajectory, trajectory_velocity, burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position)
+        return motion.chain(local, with_acceleration, overwrite=True)
 
     def _solve_velocities(self, burst: Burst, positions: np.ndarray, biases: np.ndarray, motion: CandidateMotion) -> tuple[np.ndarray, np.ndarray]:
         """MAP velocities for fixed positions, and the Jacobians (C, K, 2, 6) of the last linearization."""

@@ -88,14 +88,25 @@ def _residuals(burst, model, states, white, prior_mean, prior_sd) -> tuple[np.nd
 
 def _jacobian(burst, model, states, white) -> np.ndarray:
     """d(whitened prediction) / d state by central differences: (C, 2K, n). Differences of the RD are
-    taken modulo the wavelength, so that a branch cut of the phasor model is no slope."""
-    columns = []
-    for j in range(model.dim):
-        shift = np.zeros(model.dim)
-        shift[j] = STEP
-        ahead, behind = (_predictions(burst, _trajectory(burst, model, states + sign * shift)) for sign in (1, -1))
-        difference = periodic_residual(ahead - behind, burst)
-        columns.append(whiten(white, difference / (2 * STEP)).reshape(len(states), -1))
+    taken modulo the wavelength, so that a branch cut of the phasor model is no slope.
+
+    Every shifted state goes through the model in one batch. A shift of a bias (the last two
+    components) moves no trajectory, so h there is h at the states themselves, evaluated once."""
+    count, dim = states.shape
+    moving = dim - 2  # the components that move the trajectory
+    shift = STEP * np.eye(dim)[:moving, None, :]  # (moving, 1, n)
+    shifted = np.concatenate([(states + shift).reshape(-1, dim), (states - shift).reshape(-1, dim), states])
+    trajectory = _trajectory(burst, model, shifted)
+    mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
+    z = burst.measurement_function(trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position)
+    predicted = (z + trajectory[..., -2:])[: 2 * moving * count].reshape(2, moving, count, -1, 2)
+    differences = list(predicted[0] - predicted[1])
+    unbiased = z[2 * moving * count:]
+    for j in range(moving, dim):
+        bias_shift = STEP * np.eye(dim)[j]
+        ahead, behind = (unbiased + _trajectory(burst, model, states + sign * bias_shift)[..., -2:] for sign in (1, -1))
+        differences.append(ahead - behind)
+    columns = [whiten(white, periodic_residual(difference, burst) / (2 * STEP)).reshape(count, -1) for difference in differences]
     return np.stack(columns, axis=-1)
 
 
@@ -113,8 +124,10 @@ def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean:
     white = _whiteners(burst, _trajectory(burst, model, states))
     measurement, prior = _residuals(burst, model, states, white, prior_mean, prior_sd)
     cost = np.sum(robust_loss(measurement**2, robust), axis=1) + np.sum(prior**2, axis=1)
+    # -d(whitened prediction)/d state at ``states``; a row is recomputed only where its step was taken
+    # (a rejected step leaves the state, its whitener and so its Jacobian as they were).
+    jacobian = -_jacobian(burst, model, states, white)
     for _ in range(iterations):
-        jacobian = -_jacobian(burst, model, states, white)
         weights = robust_weights(measurement, robust)
         normal = np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
         gradient = np.einsum("cmi,cm->ci", jacobian, weights * measurement) + prior / prior_sd
@@ -129,7 +142,9 @@ def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean:
         states[better], white[better], cost[better] = trial[better], trial_white[better], trial_cost[better]
         measurement[better], prior[better] = trial_measurement[better], trial_prior[better]
         damping = np.where(better, damping / 3, damping * 4)
-    jacobian = _jacobian(burst, model, states, white)
+        if better.any():
+            jacobian[better] = -_jacobian(burst, model, states[better], white[better])
+    jacobian = -jacobian
     weights = robust_weights(measurement, robust)
     information = np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
     return WindowFit(states, cost, information)
