@@ -27,6 +27,8 @@ FILTER_MODELS = ("cv", "ca", "ctrv")
 PATROLS = ("helix", "spiral", "circle", "lawnmower")
 RECEIVER_KINDS = ("auv", "surface")
 WAVEFORMS = ("tone", "sweep", "hop")
+FAULT_KINDS = ("none", "silent", "clipped", "dropped")
+FAULT_CHANNELS = ("mobile", "fixed", "both")
 
 
 class ConfigError(ValueError):
@@ -179,15 +181,51 @@ class SignalConfig:
     sd_inflation: float = 1.5  # the filter's R uses the Cramer-Rao sd from the frame's SNRs times this
     min_range_difference_sd: float = 0.002  # m, floor of the filter's RD sd
     min_range_rate_difference_sd: float = 0.005  # m/s, floor of the filter's RRD sd
+    # dB: a tone frame is a measurement only if, on each channel, the peak of its periodogram exceeds
+    # the noise per bin by this (a CFAR detector, acoustics.detection_statistic; noise alone: < 1 frame in 300)
+    detection_snr_db: float = 13.0
 
     def __post_init__(self) -> None:
         _choice(self.path, SIGNAL_PATHS, "signal.path")
+        _check(math.isfinite(self.detection_snr_db), "signal.detection_snr_db", f"must be finite, got {self.detection_snr_db}")
         for name in ("frame_duration", "sample_rate", "envelope_rate", "min_range_difference_sd", "min_range_rate_difference_sd"):
             _positive(getattr(self, name), f"signal.{name}")
         _non_negative(self.guard, "signal.guard")
         _check(isinstance(self.windows, int) and self.windows >= 2, "signal.windows", f"must be an integer >= 2, got {self.windows!r}")
         _check(self.sd_inflation >= 1, "signal.sd_inflation", "must be >= 1")
         _check(self.envelope_rate <= self.sample_rate, "signal.envelope_rate", f"must not exceed signal.sample_rate = {self.sample_rate}")
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """Corrupted frames injected into the sensor, to test recovery: one burst of ``duration`` s from ``start``.
+
+    ``silent``: the ``channel``'s hydrophone carries ambient noise only (it dropped out); ``clipped``: its
+    samples saturate at ``clip_level`` times the frame's RMS amplitude (real and imaginary parts apart);
+    both need measurement.mode signal. ``dropped``: no frame arrives at all (either mode).
+    """
+
+    kind: str = "none"  # none, silent, clipped, dropped
+    channel: str = "mobile"  # mobile, fixed or both (silent, clipped)
+    start: float = 60.0  # s, time of the first corrupted frame
+    duration: float = 5.0  # s
+    clip_level: float = 0.1  # saturation, in units of the frame's RMS amplitude (clipped)
+
+    def __post_init__(self) -> None:
+        _choice(self.kind, FAULT_KINDS, "fault.kind")
+        _choice(self.channel, FAULT_CHANNELS, "fault.channel")
+        _non_negative(self.start, "fault.start")
+        _non_negative(self.duration, "fault.duration")
+        _positive(self.clip_level, "fault.clip_level")
+
+    def active(self, time: float) -> bool:
+        """Whether the frame at ``time`` (s) is corrupted."""
+        return self.kind != "none" and self.start <= time < self.start + self.duration
+
+    @property
+    def channels(self) -> tuple[bool, bool]:
+        """Which channels (mobile, fixed) the fault corrupts."""
+        return self.channel in ("mobile", "both"), self.channel in ("fixed", "both")
 
 
 @dataclass(frozen=True)
@@ -215,6 +253,7 @@ class FilterConfig:
     ripple_window: float = 10.0  # s of recent measurements that lattice is weighed on
     recovery_inflation: float = 4.0  # an inconsistent filter re-seeds with its covariance times this
     window_fit: bool = True  # re-seeds refine their best hypotheses by a sliding-window MAP (aasl_gym.window)
+    sheet_check_interval: float = 10.0  # s: after the growing window, test the neighbouring whole-period sheets (0: never)
 
     def __post_init__(self) -> None:
         _choice(self.motion_model, FILTER_MODELS, "filter.motion_model")
@@ -233,6 +272,7 @@ class FilterConfig:
         _positive(self.ripple_split_sd, "filter.ripple_split_sd")
         _positive(self.ripple_window, "filter.ripple_window")
         _check(isinstance(self.window_fit, bool), "filter.window_fit", f"must be true or false, got {self.window_fit!r}")
+        _non_negative(self.sheet_check_interval, "filter.sheet_check_interval")
         _check(self.recovery_inflation >= 1, "filter.recovery_inflation", f"must be >= 1, got {self.recovery_inflation}")
 
 
@@ -350,6 +390,7 @@ class EnvConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
     patrol: PatrolConfig = field(default_factory=PatrolConfig)
+    fault: FaultConfig = field(default_factory=FaultConfig)
 
     def __post_init__(self) -> None:
         start = self.receiver.start_position
@@ -363,6 +404,8 @@ class EnvConfig:
         _check(2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source")
         _check(self.signal.frame_duration <= 1.0 / self.measurement.rate + 1e-12, "signal.frame_duration",
                f"must not exceed one step (1 / measurement.rate = {1.0 / self.measurement.rate} s)")
+        _check(self.fault.kind in ("none", "dropped") or self.measurement.mode == "signal", "fault.kind",
+               f"{self.fault.kind!r} corrupts a synthesized frame: it needs measurement.mode signal")
 
     @property
     def dt(self) -> float:

@@ -164,7 +164,10 @@ class AASLEnv(gym.Env):
     noise level), ``initialized``, ``converged`` (error below the threshold now), ``reinitialized``,
     ``fim_logdet``, ``reward_terms``. Until the filter starts (``initialized`` False) the estimate is
     the prior's - a finite mean and covariance (``aasl_gym.fisher.information_prior``) - so no value
-    is NaN and Gymnasium's ``check_env`` passes. On the last step also ``convergence_time``, ``rmse``,
+    is NaN and Gymnasium's ``check_env`` passes. The one exception is a lost frame - one the ``fault``
+    option drops, or in which the front end's detector hears no source (``signal.detection_snr_db``):
+    its ``measurement`` (and, if dropped, ``snr_db``) is NaN, the filter only predicts, and the
+    observation keeps the last measurement. On the last step also ``convergence_time``, ``rmse``,
     ``final_error``, ``success`` (threshold -> bool), ``time_to_first_estimate`` and
     ``reinitializations``; these count from the tracker's own estimate (the prior never converges and
     is not in the RMSE), and the ones that can be NaN (``convergence_time`` when it never converged)
@@ -218,7 +221,7 @@ class AASLEnv(gym.Env):
         if self.signal_mode:
             self.sensor = SignalSensor(cfg, period)
         else:
-            self.sensor = GeometricSensor(measurement_sd, self.propagation, cfg.world.reflections, period)
+            self.sensor = GeometricSensor(measurement_sd, self.propagation, cfg.world.reflections, period, cfg.fault)
         self.tracker = SourceTracker(cfg, self.source_region, self.acoustic_covariance)
         self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
@@ -300,13 +303,15 @@ class AASLEnv(gym.Env):
         estimate = self.tracker.position
         estimate_velocity = self.tracker.velocity
         jacobian = measurement_jacobian(estimate, estimate_velocity, self.reported_position, self.reported_velocity, self.fixed)
-        fim_logdet = self.information.step(dt, jacobian, noise)
+        measured = bool(np.all(np.isfinite(z)))  # a lost frame (config.fault, or one the detector missed) is NaN
+        fim_logdet = self.information.step(dt, jacobian if measured else None, noise)
         if self.planner is not None:
             self.planner.observe(out.initialized, estimate, estimate_velocity, self.reported_position, self.reported_velocity)
         # The metrics and rewards count from the tracker's own estimate; info reports the prior's error before it.
         estimate_error = float(np.linalg.norm(estimate - self.source.position))
         error = estimate_error if out.initialized else math.nan
-        self._latest[:2] = z
+        if measured:  # the observation holds the last measurement over lost frames
+            self._latest[:2] = z
         self._latest[2:] = out.innovation / out.innovation_sd if np.all(np.isfinite(out.innovation)) else 0.0
 
         # 4. reward

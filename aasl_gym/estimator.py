@@ -158,6 +158,9 @@ class SourceTracker:
         self.last_reseed = np.nan
         self.reseeding = False  # an LC-MAP start keeps re-running LC-MAP on its growing window
         self.window_start = np.nan  # s, first measurement of that window
+        self.last_sheet_check = -np.inf  # s
+        self.gap = False  # frames were lost since the last measurement (see :meth:`_reanchor`)
+        self.range_offset = 0.0  # m added to every measured RD: whole periods the track slipped by in gaps
 
 
     def _sigma_measurements(self, sigmas: np.ndarray, position_sd: np.ndarray, resolved: np.ndarray, mobile: np.ndarray,
@@ -323,6 +326,52 @@ class SourceTracker:
             hypothesis.resolved = fitted[4]
         return kept[fits[0][0]] >= len(running)
 
+    def _sheet_check_due(self, time: float) -> bool:
+        """A sheet check (:meth:`_check_sheets`) every ``filter.sheet_check_interval`` once the growing
+        window's re-seeding is over (it weighs every sheet itself)."""
+        interval = self.config.filter.sheet_check_interval
+        return (
+            self.recovers and interval > 0 and self.wavelength is not None
+            and time - self.window_start > self.config.initializer.reseed_until + 1e-9
+            and time - self.last_sheet_check >= interval - 1e-9
+        )
+
+    def _sheet_neighbours(self, x: np.ndarray) -> np.ndarray:
+        """``x`` moved onto the two neighbouring whole-period sheets (2, n): b_p -+ one wavelength, and the
+        position moved along the direct RD's gradient (Newton steps at the latest receiver position) so
+        that the predicted RD stays what it was."""
+        mobile, mobile_velocity = self.history[-1][2], self.history[-1][3]
+        range_difference = lambda state: direct_measurement(state[0:3], state[3:6], mobile, mobile_velocity, self.fixed)[0]  # noqa: E731
+        neighbours = np.repeat(x[None], 2, axis=0)
+        for neighbour, periods in zip(neighbours, (1.0, -1.0)):
+            neighbour[-2] -= periods * self.wavelength
+            target = range_difference(x) + periods * self.wavelength
+            for _ in range(3):
+                p = neighbour[0:3]
+                gradient = (p - mobile) / np.linalg.norm(p - mobile) - (p - self.fixed) / np.linalg.norm(p - self.fixed)
+                neighbour[0:3] = p + gradient * (target - range_difference(neighbour)) / max(gradient @ gradient, 1e-6)
+        return neighbours
+
+    def _check_sheets(self, time: float) -> bool:
+        """Whether the likeliest filter sits on a wrong whole-period sheet: it and its two neighbours
+        (:meth:`_sheet_neighbours`) are refitted on the last ``reseed_until`` seconds
+        (:meth:`_fit_window`); if a neighbour explains that window better by more than the pruning ratio,
+        the bank is replaced by the fits (a re-initialization; True).
+
+        A filter on a neighbouring sheet explains each new measurement almost as well as the truth, so its
+        innovations stay consistent and no recovery starts; a long window tells the sheets apart."""
+        self.last_sheet_check = time
+        states = np.concatenate([self.ukf.x[None], self._sheet_neighbours(self.ukf.x)])
+        fits = self._fit_window(self._samples_since(time - self.config.initializer.reseed_until), states)
+        running = next(log_weight for index, _, _, log_weight, _ in fits if index == 0)
+        if running > -self.config.filter.prune_log_ratio:
+            return False
+        logger.debug("t = %.1f s: a neighbouring whole-period sheet explains the window better; switching", time)
+        self.bank = [self._hypothesis(x, covariance, log_weight, time) for _, x, covariance, log_weight, _ in fits]
+        for hypothesis, fitted in zip(self.bank, fits):
+            hypothesis.resolved = fitted[4]
+        return True
+
     def _next_to_running(self, base: np.ndarray, running: int) -> np.ndarray:
         """Which of the states ``base`` (H, 8) after the first ``running`` lie on a running one's sheet
         (range biases within half a wavelength) and within LC-MAP's ``separation`` of it."""
@@ -411,6 +460,8 @@ class SourceTracker:
         # Only a hypothesis that has yet to resolve the ripple needs its position sd (an eigen-decomposition).
         position_sd = np.array([self._position_sd(h.ukf.P) if u else 0.0 for h, u in zip(predicted, unresolved)])
         sigma_z, extra = self._sigma_measurements(sigmas, position_sd, ~np.array(unresolved), mobile, mobile_velocity)
+        if self.gap:
+            z = self._reanchor(z, predicted[0].ukf, sigma_z[0], noise + extra[0])
         kept = []
         for hypothesis, predicted_z, extra_noise in zip(predicted, sigma_z, extra):
             ukf = hypothesis.ukf
@@ -426,6 +477,52 @@ class SourceTracker:
                     hypothesis = self._resolve_ripple(hypothesis, time)
                 kept.append(hypothesis)
         self.bank = kept
+
+    def _reanchor(self, z: np.ndarray, ukf: UnscentedKalmanFilter, sigma_z: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """``z`` after a gap, its RD moved by whole wavelengths to the one the likeliest filter (``ukf``,
+        its sigma points' measurements ``sigma_z``, R ``noise``) predicts, if that is sharp enough.
+
+        A sensor unwraps the tone's RD frame to frame; across lost or undetected frames the track can
+        slip by whole periods, which a filter would take for a jump of the source. Where the predicted
+        RD's sd is under a quarter wavelength the prediction knows the period better than the
+        unwrapper did; the offset is kept for every later measurement (and this one in the history)."""
+        self.gap = False
+        if self.wavelength is None:
+            return z
+        mean = ukf.Wm @ sigma_z[:, 0]
+        variance = ukf.Wc @ (sigma_z[:, 0] - mean) ** 2 + noise[0, 0]
+        periods = np.round((z[0] - mean) / self.wavelength)
+        if periods == 0 or variance > (0.25 * self.wavelength) ** 2:
+            return z
+        logger.debug("the RD track slipped %+d periods across a gap; re-anchored", periods)
+        self.range_offset -= periods * self.wavelength
+        z = z.copy()
+        z[0] -= periods * self.wavelength
+        self.history[-1] = (self.history[-1][0], z) + self.history[-1][2:]
+        return z
+
+    def _coast(self, time: float, rng: np.random.Generator) -> TrackerOutput:
+        """A step without a measurement (a dropped or undetected frame): the filters predict; nothing is
+        kept. Before the filter starts, the burst collected so far is discarded at the next measurement
+        (its RD track may have slipped across the gap)."""
+        self.gap = True
+        nan2 = np.full(2, np.nan)
+        if not self.initialized:
+            return TrackerOutput(False, False, nan2, nan2)
+        kept = []
+        for hypothesis in self.bank:
+            try:
+                hypothesis.ukf.predict(time - self.last_time)
+            except np.linalg.LinAlgError:
+                continue
+            kept.append(hypothesis)
+        self.last_time = time
+        self.bank = kept
+        if not kept:  # re-start on the last measurements; the new filters stand at the latest one's time
+            self.reinitializations += 1
+            self._start(self._lcmap_at(time), min(self.reinit_length, len(self.history)), rng)
+            self.last_time = self.history[-1][0]
+        return TrackerOutput(True, not kept, nan2, nan2)
 
     def _resolve_ripple(self, hypothesis: Hypothesis, time: float) -> Hypothesis:
         """Where a hypothesis's position sd has just fallen within reach of the ripple
@@ -467,8 +564,15 @@ class SourceTracker:
         """Assimilate one measurement ``z = [RD, RRD]`` taken at ``time`` with the reported receiver state;
         ``noise_covariance`` is this measurement's acoustic R (the tracker's fixed one if None); each
         hypothesis adds the navigation term at its own estimate."""
+        z = np.asarray(z, dtype=float)
+        if not np.all(np.isfinite(z)):
+            return self._coast(time, rng)
+        if self.gap and not self.initialized:
+            self.history.clear()
+            self.gap = False
+        z = z + [self.range_offset, 0.0]
         noise = self.noise_covariance if noise_covariance is None else np.asarray(noise_covariance, dtype=float)
-        self.history.append((time, np.asarray(z, dtype=float), np.asarray(mobile, dtype=float), np.asarray(mobile_velocity, dtype=float), noise))
+        self.history.append((time, z, np.asarray(mobile, dtype=float), np.asarray(mobile_velocity, dtype=float), noise))
         if np.isnan(self.first_time):
             self.first_time = time
         nan2 = np.full(2, np.nan)
@@ -496,6 +600,8 @@ class SourceTracker:
                 self.reseeding = self.reseed_length > 0
         elif self._reseed_due(time):
             self._reseed(time, rng)
+        elif self._sheet_check_due(time):
+            jumped = self._check_sheets(time)
         self.reinitializations += jumped
         ukf = self.ukf
         return TrackerOutput(True, jumped, ukf.y.copy(), np.sqrt(np.diag(ukf.S)))

@@ -72,9 +72,11 @@ class InformationTracker:
         f = cv_transition_matrix(dt)
         return f @ self.covariance @ f.T + self.process_noise
 
-    def step(self, dt: float, jacobian: np.ndarray, noise: np.ndarray) -> float:
-        """Propagate one step, add one measurement's information; returns the new ``fim_logdet``."""
-        self.covariance = updated_covariance(self.predicted(dt), jacobian, noise)
+    def step(self, dt: float, jacobian: np.ndarray | None, noise: np.ndarray) -> float:
+        """Propagate one step, add one measurement's information (none if ``jacobian`` is None: the
+        frame was lost); returns the new ``fim_logdet``."""
+        predicted = self.predicted(dt)
+        self.covariance = predicted if jacobian is None else updated_covariance(predicted, jacobian, noise)
         self.covariance = 0.5 * (self.covariance + self.covariance.T)
         return float(position_information_logdet(self.covariance))
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aasl_gym import acoustics, geometry
-from aasl_gym.config import EnvConfig, WorldConfig
+from aasl_gym.config import EnvConfig, FaultConfig, WorldConfig
 
 
 @dataclass(frozen=True)
@@ -203,13 +203,16 @@ class GeometricSensor:
     """z = h(true state) + Gaussian noise, with the tone's whole-period ambiguity (SPEC section 3).
 
     With reflections on, the true [RD, RRD] is the phasor model's (what a tone front end measures).
+    A frame the ``fault`` drops is NaN (its noise is still drawn, so later frames match a run without it).
     """
 
-    def __init__(self, sd: np.ndarray, propagation: Propagation, reflections: bool, period: float | None):
+    def __init__(self, sd: np.ndarray, propagation: Propagation, reflections: bool, period: float | None,
+                 fault: FaultConfig | None = None):
         self.sd = np.asarray(sd, dtype=float)
         self.propagation = propagation
         self.reflections = reflections
         self.unwrapper = Unwrapper(period)
+        self.fault = fault or FaultConfig()
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
         self.unwrapper.reset()
@@ -220,6 +223,8 @@ class GeometricSensor:
         model = "phasor" if self.reflections else "none"
         truth = multipath_measurement(model, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
         noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
+        if self.fault.active(time):
+            return np.full(2, np.nan)
         return np.array([self.unwrapper(noisy[0]), noisy[1] + range_rate_bias])
 
 
@@ -234,6 +239,11 @@ class SignalSensor:
     wavelength over its whole band: its delay also comes from the correlation phase, and its measured
     spread is 1.0-1.3x that sd (``tests/test_acoustics.py``), within the inflation. The tone's spread is
     0.8-1.3x its bound. ``range_rate_bias`` (a clock-rate offset) is added to RRD.
+
+    A frame is no measurement (z is NaN) when the ``fault`` option drops it, when the detector does not
+    hear the source in it (:meth:`~aasl_gym.acoustics.FrontEnd.heard`: a channel clipped, or one whose
+    narrowband detection statistic is below ``signal.detection_snr_db``, e.g. a silent hydrophone).
+    A dropped frame is still synthesized, so that later frames see the same noise as without the fault.
     """
 
     def __init__(self, config: EnvConfig, period: float | None):
@@ -245,10 +255,12 @@ class SignalSensor:
             sound_speed=world.sound_speed, source_level_db=source.source_level_db, noise_level_db=world.noise_level_db,
             reflections=world.reflections, water_depth=world.water_depth, surface_reflection=world.surface_reflection,
             bed_reflection=world.bed_reflection, max_delay=2.5 * world.region_radius / world.sound_speed,
+            detection_snr_db=sig.detection_snr_db,
         )
         self.unwrapper = Unwrapper(period)
         self.snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
         self.covariance = np.diag([sig.min_range_difference_sd**2, sig.min_range_rate_difference_sd**2])
+        self.fault = config.fault
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
         self.unwrapper.reset()
@@ -258,6 +270,13 @@ class SignalSensor:
 
     def measure(self, rng: np.random.Generator, time: float, position, velocity, mobile, mobile_velocity, fixed,
                 range_rate_bias: float = 0.0) -> np.ndarray:
-        result, self.snr = self.front_end.measure(rng, time, position, velocity, mobile, mobile_velocity, fixed)
+        fault = self.fault if self.fault.active(time) else None
+        corrupt = acoustics.FrameFault(fault.kind, fault.channels, fault.clip_level) if fault and fault.kind != "dropped" else None
+        result, self.snr, heard = self.front_end.measure(rng, time, position, velocity, mobile, mobile_velocity, fixed, corrupt)
         self.covariance = np.diag(signal_noise_sd(self.config, self.snr[0], self.snr[1]) ** 2)
+        if fault and fault.kind == "dropped":
+            self.snr = np.full(2, np.nan)
+            return np.full(2, np.nan)
+        if not heard:
+            return np.full(2, np.nan)
         return np.array([self.unwrapper(result.range_difference), result.range_rate_difference + range_rate_bias])

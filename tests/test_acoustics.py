@@ -266,3 +266,33 @@ def test_a_delay_longer_than_a_window_is_measured(rng):
     assert result.range_difference == pytest.approx(rd, abs=2e-3 * abs(rd) + 2e-3)
     rrd = geometry.range_rate_difference(source, source_velocity, mobile, mobile_velocity, FIXED)
     assert result.range_rate_difference == pytest.approx(rrd, abs=1.5e-2)
+
+
+def test_the_detector_hears_a_weak_tone_but_not_a_silent_or_clipped_channel(rng):
+    """The front end's CFAR detector: noise alone is exponential per periodogram bin, so its in-band
+    peak passes 13 dB (20x the mean per bin) in about (bins) x e^-20 of frames - none of 200 silent
+    frames here; a tone at about 0 dB band SNR gathers the band's ~40 bins' worth of power into one
+    (+16 dB) and is heard in every frame; a clipped channel (many samples at full scale) never is."""
+    source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
+    front_end = acoustics.FrontEnd()
+    measure = lambda fault=None: front_end.measure(rng, 1.0, source, np.zeros(3), mobile, np.zeros(3), FIXED, fault)  # noqa: E731
+    silent = acoustics.FrameFault("silent", (True, False))
+    assert not any(measure(silent)[2] for _ in range(200))
+    clipped = acoustics.FrameFault("clipped", (False, True), clip_level=0.5)
+    assert not any(measure(clipped)[2] for _ in range(20))
+    assert all(measure()[2] for _ in range(20))
+    front_end.noise_level_db = 140.0 - 20 * np.log10(np.linalg.norm(source - FIXED))  # 0 dB at the fixed one
+    weak = [measure() for _ in range(50)]
+    assert np.all(np.mean([snr for _, snr, _ in weak], axis=0) < 1.5)  # below ~2 dB in the band, as measured
+    assert all(heard for _, _, heard in weak)
+
+
+def test_saturation_is_detected_on_both_paths(rng):
+    """An unclipped noisy tone reaches its largest magnitude once; clipped at any level up to 0.9 of its
+    RMS amplitude, more than 1 % of its samples sit there (real, and complex parts apart)."""
+    times = np.arange(2000) / 10_000
+    for samples in (np.cos(2 * np.pi * 1000 * times) + rng.normal(0, 0.3, 2000),
+                    np.exp(2j * np.pi * 3 * times) + rng.normal(0, 0.3, 2000) + 1j * rng.normal(0, 0.3, 2000)):
+        assert not acoustics.saturated(samples)
+        for level in (0.1, 0.5, 0.9):
+            assert acoustics.saturated(acoustics.clipped(samples, level))

@@ -41,6 +41,12 @@ def test_default_yaml_is_the_default():
     ({"initializer": {"turn_rate_steps": 0}}, r"initializer\.turn_rate_steps: must be an integer >= 1"),
     ({"initializer": {"max_turn_rate": -0.1}}, r"initializer\.max_turn_rate: must be a finite number > 0"),
     ({"initializer": {"acceleration_prior_sd": 0}}, r"initializer\.acceleration_prior_sd: must be a finite number > 0"),
+    ({"fault": {"kind": "noisy"}}, r"fault\.kind: 'noisy' is not one of \['none', 'silent', 'clipped', 'dropped'\]"),
+    ({"fault": {"channel": "left"}}, r"fault\.channel: 'left' is not one of"),
+    ({"fault": {"kind": "silent"}, "measurement": {"mode": "geometric"}}, r"fault\.kind: 'silent' corrupts a synthesized frame"),
+    ({"fault": {"duration": float("nan")}}, r"fault\.duration: must be a finite number >= 0"),
+    ({"signal": {"detection_snr_db": float("inf")}}, r"signal\.detection_snr_db: must be finite"),
+    ({"filter": {"sheet_check_interval": -1}}, r"filter\.sheet_check_interval: must be a finite number >= 0"),
 ])
 def test_bad_values_are_named(data, match):
     with pytest.raises(ConfigError, match=match):
