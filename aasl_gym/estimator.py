@@ -108,7 +108,8 @@ class SourceTracker:
         self.navigation_sd = (receiver.nav_position_sd, receiver.velocity_sd) if compensate else (0.0, 0.0)
         f = config.filter
         self.propagation = Propagation.from_config(config.world, config.source.frequency)
-        self.model = make_motion_model(f)
+        # The source stays in the water column: the filter's motion reflects where the world's does.
+        self.model = make_motion_model(f, (region.z_min, region.z_max))
         # LC-MAP fits the filter's motion model: straight lines, turns or a constant acceleration.
         self.initializer = make_initializer(config.initializer.name, config.initializer, region, self.model.name)
         self.reinitializer = LCMAPInitializer(config.initializer, region, self.model.name)
@@ -367,6 +368,7 @@ class SourceTracker:
         if running > -self.config.filter.prune_log_ratio:
             return False
         logger.debug("t = %.1f s: a neighbouring whole-period sheet explains the window better; switching", time)
+        fits = fits[: self.config.initializer.hypotheses]
         self.bank = [self._hypothesis(x, covariance, log_weight, time) for _, x, covariance, log_weight, _ in fits]
         for hypothesis, fitted in zip(self.bank, fits):
             hypothesis.resolved = fitted[4]
@@ -392,15 +394,7 @@ class SourceTracker:
         ripple: its coarse fit is kept instead, unresolved, after the fine fits that passed.
         """
         ini = self.config.initializer
-        prior_sd = np.full(self.model.dim, np.inf)
-        prior_sd[3:6] = ini.velocity_prior_sd
-        if self.model.name == "ctrv":
-            prior_sd[6] = ini.max_turn_rate
-        elif self.model.name == "ca":
-            prior_sd[6:9] = ini.acceleration_prior_sd
-        prior_sd[-2:] = (self.config.wavelength if self.ripple else ini.range_bias_sd), ini.rate_bias_sd
-        prior_mean = np.zeros_like(states)
-        prior_mean[:, -2] = states[:, -2]  # each keeps its whole-period sheet
+        prior_mean, prior_sd = self._window_prior(states)
         # Every sample: halving a 47 s window moved a CV fit from 0.17 m to 0.63 m off (the filter: 0.13 m).
         fit = fit_window(self._burst(length), self.model, states, prior_mean, prior_sd, robust=self.ripple)
         covariances = _covariances(fit.information, ini.covariance_inflation)
@@ -421,6 +415,21 @@ class SourceTracker:
         # The coarse fits that were not resolved follow, half the pruning ratio behind the resolved ones.
         behind = -0.5 * self.config.filter.prune_log_ratio
         return resolved + [(i, x, p, w + behind, False) for i, x, p, w, _ in coarse if i not in top[passed]]
+
+    def _window_prior(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The window fits' prior, mean (C, n) and sd (n,): slow, plausible turn rates or accelerations,
+        small clock-rate bias; each start keeps its own whole-period sheet (b_p)."""
+        ini = self.config.initializer
+        prior_sd = np.full(self.model.dim, np.inf)
+        prior_sd[3:6] = ini.velocity_prior_sd
+        if self.model.name == "ctrv":
+            prior_sd[6] = ini.max_turn_rate
+        elif self.model.name == "ca":
+            prior_sd[6:9] = ini.acceleration_prior_sd
+        prior_sd[-2:] = (self.config.wavelength if self.ripple else ini.range_bias_sd), ini.rate_bias_sd
+        prior_mean = np.zeros_like(states)
+        prior_mean[:, -2] = states[:, -2]
+        return prior_mean, prior_sd
 
     def _implausible(self, ukf: UnscentedKalmanFilter, time: float) -> bool:
         if not np.all(np.isfinite(ukf.x)):
@@ -593,9 +602,11 @@ class SourceTracker:
         jumped = False
         if self.recovers and self._inconsistent(self.bank[0], time):
             # The likeliest filter stopped explaining the data: search again on the recent window, at any time.
+            # A filter on a neighbouring whole-period sheet drifts off slowly: the long window tells first.
             logger.debug("inconsistent at t = %.1f s; re-seeding on the recent window", time)
-            jumped = self._reseed(time, rng, inflation=self.config.filter.recovery_inflation, length=self.reinit_length)
-            if jumped:  # a new track: re-seed its growing window as after a start
+            jumped = self.wavelength is not None and self._check_sheets(time)
+            if not jumped and self._reseed(time, rng, self.config.filter.recovery_inflation, self.reinit_length):
+                jumped = True  # a new track: re-seed its growing window as after a start
                 self.window_start = self.history[-min(self.reinit_length, len(self.history))][0]
                 self.reseeding = self.reseed_length > 0
         elif self._reseed_due(time):

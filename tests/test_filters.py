@@ -109,3 +109,33 @@ def test_coordinated_turn_matches_the_ode():
     straight = near_zero.copy()
     straight[:3] += 2.5 * near_zero[3:6]
     np.testing.assert_allclose(model.transition(near_zero[None], 2.5)[0][:6], straight[:6], atol=1e-7)
+
+
+@pytest.mark.parametrize("name", ["cv", "ca", "ctrv"])
+def test_a_model_with_depth_bounds_reflects_where_the_world_does(name):
+    """Folded into the water column's slab, a model's free motion is the world's source stepping with
+    its specular reflections (motion.advance_source, a second implementation), over several bounces,
+    both from one state forward (the UKF's transition) and run back from the end (a window's trajectory)."""
+    from aasl_gym.motion import Box, SourceState, advance_source
+
+    region = Box(np.inf, -12.0, -2.0)
+    model = MOTION_MODELS[name](FilterConfig(), (region.z_min, region.z_max))
+    velocity, acceleration, turn_rate = np.array([0.4, -0.2, 0.35]), np.zeros(3), 0.0
+    if name == "ca":
+        acceleration = np.array([0.0, 0.01, -0.004])
+    elif name == "ctrv":
+        turn_rate = 0.05
+    source = SourceState(name, np.array([3.0, 1.0, -3.0]), velocity, acceleration, turn_rate, 10.0)
+    states, dt = [], 0.2
+    for _ in range(400):  # 80 s: three bounces
+        extra = {"cv": [], "ca": source.acceleration, "ctrv": [source.turn_rate]}[name]
+        states.append(np.concatenate([source.position, source.velocity, extra, [0.0, 0.0]]))
+        source = advance_source(source, dt, region)
+    states = np.array(states)
+    stepped = [states[0]]
+    for _ in range(len(states) - 1):
+        stepped.append(model.transition(stepped[-1][None].copy(), dt)[0])
+    np.testing.assert_allclose(np.array(stepped)[:, 0:6], states[:, 0:6], atol=1e-9)
+    lags = dt * np.arange(-(len(states) - 1), 1)
+    back = model.trajectory(states[-1:], lags)[0]
+    np.testing.assert_allclose(back[:, 0:6], states[:, 0:6], atol=1e-9)
