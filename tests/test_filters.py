@@ -112,30 +112,39 @@ def test_coordinated_turn_matches_the_ode():
 
 
 @pytest.mark.parametrize("name", ["cv", "ca", "ctrv"])
-def test_a_model_with_depth_bounds_reflects_where_the_world_does(name):
-    """Folded into the water column's slab, a model's free motion is the world's source stepping with
-    its specular reflections (motion.advance_source, a second implementation), over several bounces,
-    both from one state forward (the UKF's transition) and run back from the end (a window's trajectory)."""
+def test_a_filter_with_depth_bounds_reflects_where_the_world_does(name):
+    """A UKF that only predicts, started on a source (tiny covariance) in a slab of water, keeps its
+    mean on the world's source stepping with its specular reflections (motion.advance_source, a second
+    implementation) through three bounces; the covariance stays symmetric positive definite."""
     from aasl_gym.motion import Box, SourceState, advance_source
 
     region = Box(np.inf, -12.0, -2.0)
-    model = MOTION_MODELS[name](FilterConfig(), (region.z_min, region.z_max))
-    velocity, acceleration, turn_rate = np.array([0.4, -0.2, 0.35]), np.zeros(3), 0.0
-    if name == "ca":
-        acceleration = np.array([0.0, 0.01, -0.004])
-    elif name == "ctrv":
-        turn_rate = 0.05
-    source = SourceState(name, np.array([3.0, 1.0, -3.0]), velocity, acceleration, turn_rate, 10.0)
-    states, dt = [], 0.2
+    model = MOTION_MODELS[name](FilterConfig(acceleration_psd=0.0, jerk_psd=0.0, turn_rate_psd=0.0), (region.z_min, region.z_max))
+    acceleration = np.array([0.0, 0.01, -0.004]) if name == "ca" else np.zeros(3)
+    source = SourceState(name, np.array([3.0, 1.0, -3.013]), np.array([0.4, -0.2, 0.35]), acceleration, 0.05 if name == "ctrv" else 0.0, 10.0)
+    extra = {"cv": [], "ca": acceleration, "ctrv": [source.turn_rate]}[name]
+    ukf = UnscentedKalmanFilter(model)
+    ukf.initialize(np.concatenate([source.position, source.velocity, extra, [0.0, 0.0]]), np.eye(model.dim) * 1e-10)
     for _ in range(400):  # 80 s: three bounces
-        extra = {"cv": [], "ca": source.acceleration, "ctrv": [source.turn_rate]}[name]
-        states.append(np.concatenate([source.position, source.velocity, extra, [0.0, 0.0]]))
-        source = advance_source(source, dt, region)
-    states = np.array(states)
-    stepped = [states[0]]
-    for _ in range(len(states) - 1):
-        stepped.append(model.transition(stepped[-1][None].copy(), dt)[0])
-    np.testing.assert_allclose(np.array(stepped)[:, 0:6], states[:, 0:6], atol=1e-9)
-    lags = dt * np.arange(-(len(states) - 1), 1)
-    back = model.trajectory(states[-1:], lags)[0]
-    np.testing.assert_allclose(back[:, 0:6], states[:, 0:6], atol=1e-9)
+        source = advance_source(source, 0.2, region)
+        ukf.predict(0.2)
+        np.testing.assert_allclose(ukf.x[0:6], np.concatenate([source.position, source.velocity]), atol=1e-5)
+    assert np.all(np.linalg.eigvalsh(ukf.P) > 0)
+
+
+def test_folded_window_trajectories_reflect_where_the_world_does():
+    """With ``fold_trajectories`` a state's trajectory, run back from the end of a window, is the world's
+    source stepping with its reflections over three bounces."""
+    from aasl_gym.motion import Box, SourceState, advance_source
+
+    region = Box(np.inf, -12.0, -2.0)
+    model = MOTION_MODELS["cv"](FilterConfig(), (region.z_min, region.z_max), fold_trajectories=True)
+    source = SourceState("cv", np.array([3.0, 1.0, -3.013]), np.array([0.4, -0.2, 0.35]), np.zeros(3), 0.0, 10.0)
+    path = []
+    for _ in range(400):
+        path.append(np.concatenate([source.position, source.velocity]))
+        source = advance_source(source, 0.2, region)
+    path = np.array(path)
+    end = np.concatenate([path[-1], [0.0, 0.0]])
+    back = model.trajectory(end[None], 0.2 * np.arange(-(len(path) - 1), 1))[0]
+    np.testing.assert_allclose(back[:, 0:6], path, atol=1e-9)
