@@ -16,6 +16,7 @@ import argparse
 import json
 import math
 import multiprocessing
+import os
 import shlex
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -61,7 +62,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--filter-model", choices=FILTER_CHOICES, default=None,
                         help="filter motion model; 'matched' uses cv for static/cv, ca for ca, ctrv for ctrv")
     parser.add_argument("--config", type=Path, default=None, help="YAML config (default: configs/default.yaml)")
-    parser.add_argument("--workers", type=int, default=1, help="processes")
+    parser.add_argument("--workers", type=int, default=None, help="processes (default: every core this process may use)")
     parser.add_argument("--out", type=Path, default=Path("results/evaluation"))
     parser.add_argument("--no-plots", action="store_true")
     parser.add_argument("--trajectories", type=int, default=2, help="episodes per policy and motion drawn in top and depth views")
@@ -73,6 +74,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     if args.trajectories < 0:
         parser.error(f"--trajectories must be >= 0, got {args.trajectories}")
+    if args.workers is None:
+        args.workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
     for policy in args.policies:
@@ -218,7 +221,7 @@ def write_report(path: Path, command: str, config: EnvConfig, summary: list[dict
         f"Command: `{command}`", "",
         measurements +
         f"navigation sigma_rov = {config.receiver.nav_position_sd} m; reflections {'on' if config.world.reflections else 'off'}; "
-        f"filter multipath model `{config.filter.multipath}`; episode {config.episode.duration:.0f} s at {config.measurement.rate:.0f} Hz.", "",
+        f"filter multipath model `{config.filter_multipath}`; episode {config.episode.duration:.0f} s at {config.measurement.rate:.0f} Hz.", "",
         "Convergence time: first time the error falls below 1 m and stays below to the end; its mean and 95 % CI are over "
         "the episodes that converged, the censored mean counts a non-converged episode as the full duration. "
         "Success at a threshold: the error converged below it within the episode.", "",

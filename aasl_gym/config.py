@@ -22,7 +22,7 @@ SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "mixed")
 MEASUREMENT_MODES = ("signal", "geometric")
 SIGNAL_PATHS = ("fast", "hardware")
 INITIALIZERS = ("lcmap", "naive", "random", "tdoa-ls")
-MULTIPATH_MODELS = ("none", "linear", "phasor")
+MULTIPATH_MODELS = ("matched", "none", "linear", "phasor")
 FILTER_MODELS = ("cv", "ca", "ctrv")
 PATROLS = ("helix", "spiral", "circle", "lawnmower")
 RECEIVER_KINDS = ("auv", "surface")
@@ -50,6 +50,17 @@ def _positive(value: float, path: str) -> None:
 
 def _non_negative(value: float, path: str) -> None:
     _check(math.isfinite(value) and value >= 0, path, f"must be a finite number >= 0, got {value!r}")
+
+
+def _check_finite(section: Any, name: str) -> None:
+    """Every number of a config section (and of its lists) is finite: a NaN or an infinity would pass
+    most range checks and surface far from its key."""
+    for item in dataclasses.fields(section):
+        value = getattr(section, item.name)
+        values = value if isinstance(value, tuple) else (value,)
+        for number in values:
+            if isinstance(number, float):
+                _check(math.isfinite(number), f"{name}.{item.name}", f"must be finite, got {value!r}")
 
 
 def _ordered_pair(pair: tuple[float, float], path: str, minimum: float = 0.0) -> None:
@@ -233,7 +244,7 @@ class FilterConfig:
     """The UKF: motion model, process noise, measurement model, sigma points, divergence handling."""
 
     motion_model: str = "cv"  # cv, ca, ctrv
-    multipath: str = "phasor"  # none, linear, phasor: the filter's model of the measured RD
+    multipath: str = "matched"  # matched (phasor with reflections, else none), none, linear, phasor: the filter's RD model
     acceleration_psd: float = 1e-5  # m^2/s^3, white-acceleration spectral density (cv, ctrv)
     jerk_psd: float = 1e-6  # m^2/s^5, white-jerk spectral density (ca)
     turn_rate_psd: float = 1e-6  # rad^2/s^3 (ctrv)
@@ -393,6 +404,8 @@ class EnvConfig:
     fault: FaultConfig = field(default_factory=FaultConfig)
 
     def __post_init__(self) -> None:
+        for section in dataclasses.fields(self):
+            _check_finite(getattr(self, section.name), section.name)
         start = self.receiver.start_position
         depth = self.world.water_depth
         _check(-depth + self.receiver.bed_clearance <= start[2] <= -self.receiver.min_depth,
@@ -406,6 +419,14 @@ class EnvConfig:
                f"must not exceed one step (1 / measurement.rate = {1.0 / self.measurement.rate} s)")
         _check(self.fault.kind in ("none", "dropped") or self.measurement.mode == "signal", "fault.kind",
                f"{self.fault.kind!r} corrupts a synthesized frame: it needs measurement.mode signal")
+
+    @property
+    def filter_multipath(self) -> str:
+        """The filter's multipath model, ``matched`` resolved against the world: the exact (phasor) model
+        where the world has reflections, the direct path where it has none."""
+        if self.filter.multipath != "matched":
+            return self.filter.multipath
+        return "phasor" if self.world.reflections else "none"
 
     @property
     def dt(self) -> float:

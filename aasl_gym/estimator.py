@@ -44,6 +44,21 @@ does not fit (a turning source under the default straight-line filter) is found 
 LC-MAP re-starts on that window. The paper's single filter (``initializer.reseed_interval: 0``) has no
 re-seeding: an inconsistent filter is dropped and LC-MAP re-starts. The filter never raises into the
 episode.
+
+Whole-period sheets. A filter one wavelength off explains each new measurement almost as well as the
+truth and stays consistent for a long time. So after the growing window, every
+``filter.sheet_check_interval`` and first thing in a recovery, the likeliest filter and its two
+neighbouring sheets are refitted on the last ``reseed_until`` seconds (:meth:`_check_sheets`), where
+RD residuals are not circular (not under the phasor model).
+
+Lost frames. A frame the sensor could not measure (NaN: dropped, or rejected by the front end's
+detector) is not assimilated: the filters coast. The unwrapped RD track may have slipped by whole
+periods across the gap, so the next measurement takes its period from the likeliest filter's
+prediction (:meth:`_reanchor`).
+
+The water column. In the free field the filter's mean reflects at the source region's depth bounds
+once it is beyond one and moving away (as the world's sources do), and window trajectories fold
+into the slab (:class:`~aasl_gym.filters.MotionModel`).
 """
 
 from __future__ import annotations
@@ -112,7 +127,8 @@ class SourceTracker:
         # wavelength: it jumps where a receiver's phasor sum winds round zero and swings by up to half a
         # wavelength in one step near a null, so neither it nor the unwrapped measured track can be
         # trusted beyond a whole period. Its RD residuals are taken modulo the wavelength (circular).
-        self.correction_period = config.wavelength if f.multipath == "phasor" else None
+        multipath = config.filter_multipath
+        self.correction_period = config.wavelength if multipath == "phasor" else None
         self.ripple = self.correction_period is not None
         # The source stays in the water column: the filter's motion reflects where the world's does. Not
         # yet under the phasor model, whose tracks near the surface it unsettled (static sources, tuning
@@ -128,7 +144,7 @@ class SourceTracker:
         # burst R then carries the ripple as noise, ``multipath_noise``). The direct path is the function
         # itself, so that its receiver Jacobian takes the closed form.
         self.measurement_function = (
-            direct_measurement if f.multipath == "none" else partial(multipath_measurement, f.multipath, self.propagation)
+            direct_measurement if multipath == "none" else partial(multipath_measurement, multipath, self.propagation)
         )
         self.window_function = direct_measurement if self.ripple else self.measurement_function
         self.sigma_spread = merwe_weights(self.model.dim, f.alpha, f.beta, f.kappa)[2]

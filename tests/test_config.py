@@ -47,6 +47,10 @@ def test_default_yaml_is_the_default():
     ({"fault": {"duration": float("nan")}}, r"fault\.duration: must be a finite number >= 0"),
     ({"signal": {"detection_snr_db": float("inf")}}, r"signal\.detection_snr_db: must be finite"),
     ({"filter": {"sheet_check_interval": -1}}, r"filter\.sheet_check_interval: must be a finite number >= 0"),
+    ({"world": {"noise_level_db": float("nan")}}, r"world\.noise_level_db: must be finite, got nan"),
+    ({"reward": {"success_bonus": float("inf")}}, r"reward\.success_bonus: must be finite"),
+    ({"receiver": {"start_position": [15.0, float("nan"), -7.0]}}, r"receiver\.start_position: must be finite"),
+    ({"filter": {"multipath": "exact"}}, r"filter\.multipath: 'exact' is not one of \['matched', 'none', 'linear', 'phasor'\]"),
 ])
 def test_bad_values_are_named(data, match):
     with pytest.raises(ConfigError, match=match):
@@ -106,3 +110,14 @@ def test_bad_signal_settings_are_named():
         gym.make("AASL-v0", measurement="signal", config={"signal": {"path": "slow"}})
     with pytest.raises(ConfigError, match=r"signal\.frame_duration: must not exceed one step"):
         gym.make("AASL-v0", config={"signal": {"frame_duration": 0.5}})
+
+
+@pytest.mark.parametrize("reflections,expected", [(True, "phasor"), (False, "none")])
+def test_the_filter_matches_the_world_unless_told_otherwise(reflections, expected):
+    """``filter.multipath: matched`` (the default) is the exact model where the world has reflections and
+    the direct path where it has none; an explicit model is kept (for ablations)."""
+    env = gym.make("AASL-Helix-v0", measurement="geometric", reflections=reflections)
+    assert env.unwrapped.config.filter_multipath == expected
+    assert env.unwrapped.tracker.ripple == (expected == "phasor")
+    explicit = gym.make("AASL-Helix-v0", reflections=reflections, multipath="linear")
+    assert explicit.unwrapped.config.filter_multipath == "linear"

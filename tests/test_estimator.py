@@ -92,21 +92,27 @@ def test_the_tracker_recovers_a_lost_source_late_in_the_episode():
     10 m off the (static) source. Its innovations turn inconsistent, the tracker searches the recent
     window again and is back below 1 m within 30 s (tuning seeds 0-5: 14-32 s, one ended 1.01 m off),
     there to stay."""
+    def lost(info: dict) -> np.ndarray:
+        state = np.zeros(8)
+        state[0:3] = info["source_position"] + np.array([6.0, -6.0, 5.0])
+        state[-2] = info["measurement"][0] - info["measurement_true"][0]
+        return state
+
     env = AASLEnv(STUDY, patrol="helix")
     for seed in range(3):
-        env.reset(seed=seed)
-        tracker = env.tracker
-        for _ in range(350):
-            _, _, _, _, info = env.step(np.zeros(3))
-        lost = np.zeros(tracker.model.dim)
-        lost[0:3] = info["source_position"] + np.array([6.0, -6.0, 5.0])
-        lost[-2] = info["measurement"][0] - info["measurement_true"][0]
-        tracker.bank = [tracker._hypothesis(lost, np.diag([0.2**2] * 3 + [0.05**2] * 3 + [0.02**2] * 2), 0.0, info["time"])]
-        errors = []
-        for _ in range(200):
-            _, _, _, _, info = env.step(np.zeros(3))
-            errors.append(info["position_error"])
+        errors = _errors_after_replacing_the_bank(env, seed, 350, lost, 200)
         assert max(errors[150:]) < 1.0, seed
+
+
+def _errors_after_replacing_the_bank(env: AASLEnv, seed: int, steps: int, make_state, after: int) -> list[float]:
+    """Position errors over ``after`` steps once, after ``steps`` steps of the seeded episode, the bank
+    was replaced by one confident straight-line filter at ``make_state(info)``."""
+    env.reset(seed=seed)
+    for _ in range(steps):
+        info = env.step(np.zeros(3))[4]
+    confident = np.diag([0.2**2] * 3 + [0.05**2] * 3 + [0.02**2] * 2)
+    env.tracker.bank = [env.tracker._hypothesis(make_state(info), confident, 0.0, info["time"])]
+    return [env.step(np.zeros(3))[4]["position_error"] for _ in range(after)]
 
 
 def test_a_converged_filter_is_consistent():
@@ -152,17 +158,16 @@ def test_the_tracker_leaves_a_wrong_whole_period_sheet():
     seeds 0-5: 6.4 s on five, 12.6 s on one; without the check one of six came back, after 35 s)."""
     env = AASLEnv(STUDY, patrol="helix")
     wavelength = env.config.wavelength
+
+    def wrong_sheet(info: dict) -> np.ndarray:
+        state = np.zeros(8)
+        state[0:3] = _neighbouring_sheet(info, wavelength)
+        state[-2] = info["measurement"][0] - info["measurement_true"][0] - wavelength
+        assert 1.0 < np.linalg.norm(state[0:3] - info["source_position"]) < 3.0
+        return state
+
     for seed in range(2):
-        env.reset(seed=seed)
-        tracker = env.tracker
-        for _ in range(360):
-            _, _, _, _, info = env.step(np.zeros(3))
-        wrong = np.zeros(tracker.model.dim)
-        wrong[0:3] = _neighbouring_sheet(info, wavelength)
-        wrong[-2] = info["measurement"][0] - info["measurement_true"][0] - wavelength
-        assert 1.0 < np.linalg.norm(wrong[0:3] - info["source_position"]) < 3.0
-        tracker.bank = [tracker._hypothesis(wrong, np.diag([0.2**2] * 3 + [0.05**2] * 3 + [0.02**2] * 2), 0.0, info["time"])]
-        errors = [env.step(np.zeros(3))[4]["position_error"] for _ in range(240)]
+        errors = _errors_after_replacing_the_bank(env, seed, 360, wrong_sheet, 240)
         assert max(errors[75:]) < 1.0, seed
 
 

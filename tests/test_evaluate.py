@@ -10,7 +10,7 @@ import evaluate
 def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     out = tmp_path / "eval"
     code = evaluate.main(["--policies", "helix", "circle", "--initializers", "lcmap", "naive", "--motions", "static",
-                          "--episodes", "1", "--reflections", "off", "--multipath", "none", "--out", str(out)])
+                          "--episodes", "1", "--reflections", "off", "--out", str(out)])
     assert code == 0
     for name in ("report.md", "results.json", "convergence_time.png", "success_vs_threshold.png", "trajectories_static.png"):
         assert (out / name).stat().st_size > 0
@@ -27,6 +27,17 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     # paired on seeds: every policy x initializer saw the same seed
     assert {r["seed"] for r in results["episodes"]} == {1000}
     assert results["config"]["world"]["reflections"] is False
+
+
+def test_rows_are_the_same_with_one_worker_and_with_two(tmp_path):
+    """Every episode runs from its own seed, so the process pool changes no row."""
+    flags = ["--policies", "helix", "--motions", "static", "cv", "--episodes", "1", "--no-plots", "--measurement", "geometric",
+             "--reflections", "off", "--config", str(tmp_path / "short.yaml")]
+    (tmp_path / "short.yaml").write_text("episode:\n  duration: 20.0\n")
+    for workers in ("1", "2"):
+        assert evaluate.main(flags + ["--workers", workers, "--out", str(tmp_path / workers)]) == 0
+    one, two = (json.loads((tmp_path / w / "results.json").read_text())["episodes"] for w in ("1", "2"))
+    assert one == two
 
 
 def test_bad_flags_are_named(capsys, tmp_path):
@@ -52,8 +63,8 @@ def test_an_interrupted_evaluation_resumes_where_it_stopped(tmp_path, monkeypatc
     short, other = tmp_path / "short.yaml", tmp_path / "other.yaml"
     short.write_text("episode:\n  duration: 10.0\n")
     other.write_text("episode:\n  duration: 12.0\n")
-    flags = ["--policies", "helix", "random", "--motions", "static", "--episodes", "2", "--no-plots",
-             "--reflections", "off", "--multipath", "none", "--config", str(short)]
+    flags = ["--policies", "helix", "random", "--motions", "static", "--episodes", "2", "--no-plots", "--workers", "1",
+             "--reflections", "off", "--config", str(short)]
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert evaluate.main(flags + ["--out", str(whole)]) == 0
     lines = (whole / "episodes.jsonl").read_text().splitlines()
