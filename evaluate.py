@@ -210,6 +210,28 @@ def _fmt(value, digits: int = 1) -> str:
     return f"{value:.{digits}f}"
 
 
+def plain_summary(summary: list[dict]) -> list[str]:
+    """A few sentences on what the summary table says: per motion, which combination found the source
+    (to within 1 m, and kept it) most often against the others; the re-initializations; how far a
+    share at this many episodes can be trusted."""
+    several_initializers = len({s["initializer"] for s in summary}) > 1
+    label = (lambda s: f"{s['policy']} with {s['initializer']}") if several_initializers else (lambda s: s["policy"])
+    sentences = []
+    for motion in dict.fromkeys(s["motion"] for s in summary):
+        rows = [s for s in summary if s["motion"] == motion]
+        best = max(rows, key=lambda s: (s["success_rate"]["1.0"], -(s["mean_convergence_time_censored"] or math.inf)))
+        others = ", ".join(f"{label(s)} {s['success_rate']['1.0']:.0%}" for s in rows if s is not best)
+        sentences.append(f"{motion.upper() if motion != 'static' else 'Static'} sources: {label(best)} found and kept the source "
+                         f"to within 1 m in {best['success_rate']['1.0']:.0%} of {best['n']} episode{'s' * (best['n'] != 1)}" + (f" ({others})." if others else "."))
+    busiest = max(summary, key=lambda s: s["mean_reinitializations"])
+    sentences.append(f"The tracker re-initialized {min(s['mean_reinitializations'] for s in summary):.1f}-"
+                     f"{busiest['mean_reinitializations']:.1f} times per episode on average (most: {label(busiest)}, {busiest['motion']}).")
+    fewest = min(s["n"] for s in summary)
+    sentences.append(f"With {fewest} episodes per combination a success share is known to about "
+                     f"+-{98 / math.sqrt(fewest):.0f} points (95 %); smaller differences may be chance.")
+    return ["In short: " + " ".join(sentences), ""]
+
+
 def write_report(path: Path, command: str, config: EnvConfig, summary: list[dict], comparisons: dict[str, list[dict]], plots: list[str]) -> None:
     if config.measurement.mode == "geometric":
         measurements = f"Measurement noise: sigma_R = {config.measurement.range_difference_sd} m, sigma_V = {config.measurement.range_rate_difference_sd} m/s; "
@@ -218,6 +240,7 @@ def write_report(path: Path, command: str, config: EnvConfig, summary: list[dict
                         f"{config.source.source_level_db} dB, noise level {config.world.noise_level_db} dB; R from each frame's SNR); ")
     lines = [
         "# AASL-Gym evaluation", "",
+        *plain_summary(summary),
         f"Command: `{command}`", "",
         measurements +
         f"navigation sigma_rov = {config.receiver.nav_position_sd} m; reflections {'on' if config.world.reflections else 'off'}; "

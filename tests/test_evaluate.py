@@ -14,6 +14,8 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     assert code == 0
     for name in ("report.md", "results.json", "convergence_time.png", "success_vs_threshold.png", "trajectories_static.png"):
         assert (out / name).stat().st_size > 0
+    opening = (out / "report.md").read_text().splitlines()[2]
+    assert opening.startswith("In short: Static sources:") and "of 1 episode " in opening and "+-98 points" in opening
     results = json.loads((out / "results.json").read_text())
     assert set(results) >= {"command", "config", "episodes", "summary"}
     assert len(results["episodes"]) == 4
