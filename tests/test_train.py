@@ -1,5 +1,7 @@
 """train.py end to end on a tiny job, and what it writes loads back with its normalization."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import yaml
@@ -179,3 +181,43 @@ def test_a_recurrent_policy_trains_and_is_evaluated_with_its_memory_carried(tiny
     assert all(not start and state is previous for (_, _, previous), (state, start, _) in zip(calls, calls[1:]))
     hidden = np.asarray(calls[-1][2][0])
     assert hidden.shape[-1] == 16 and np.any(hidden != 0)  # the memory holds something after an episode
+
+
+ZOO = Path(__file__).resolve().parent.parent / "configs" / "rl_zoo3"
+TRAINING = Path(__file__).resolve().parent.parent / "configs" / "training.yaml"
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_rl_zoo3_hyperparameters_are_those_of_training_yaml(algo):
+    """The shipped rl-zoo3 files hold configs/training.yaml's values for both ids (one place to tune)."""
+    training = yaml.safe_load(TRAINING.read_text())
+    schedule, expected = training["schedule"], dict(training[algo])
+    zoo = yaml.safe_load((ZOO / f"{algo}.yml").read_text())
+    assert set(zoo) == {"AASL-v0", "AASL-Greedy-v0"}
+    for env_id, params in zoo.items():
+        params = dict(params)
+        assert params.pop("n_timesteps") == schedule["timesteps"] and params.pop("n_envs") == schedule["n_envs"], env_id
+        assert params.pop("policy") == "MlpPolicy"
+        assert eval(params.pop("normalize")) == {"norm_obs": schedule["normalize_observation"], "norm_reward": schedule["normalize_reward"]}
+        if "policy_kwargs" in params:
+            params["policy_kwargs"] = eval(params["policy_kwargs"])
+        assert params == expected, env_id
+
+
+@pytest.mark.slow
+def test_rl_zoo3_trains_the_env_with_the_shipped_hyperparameters(tmp_path):
+    """rl-zoo3's own trainer, unmodified, runs one PPO update on AASL-Greedy-v0 from the shipped file
+    (geometric measurements, to keep it short) and saves a model that loads."""
+    pytest.importorskip("rl_zoo3")
+    import subprocess
+    import sys
+
+    from stable_baselines3 import PPO
+
+    command = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", "AASL-Greedy-v0", "--gym-packages", "aasl_gym",
+               "--conf-file", str(ZOO / "ppo.yml"), "-n", "1200", "--eval-freq", "-1", "--seed", "0", "--log-folder", str(tmp_path),
+               "--env-kwargs", "measurement:'geometric'"]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parent.parent)
+    assert result.returncode == 0, result.stderr[-2000:]
+    (model,) = tmp_path.glob("ppo/AASL-Greedy-v0_*/AASL-Greedy-v0.zip")
+    assert PPO.load(model).n_envs == 2
