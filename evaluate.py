@@ -20,6 +20,7 @@ import os
 import shlex
 import sys
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -63,6 +64,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="filter motion model; 'matched' uses cv for static/cv, ca for ca, ctrv for ctrv")
     parser.add_argument("--config", type=Path, default=None, help="YAML config (default: configs/default.yaml)")
     parser.add_argument("--workers", type=int, default=None, help="processes (default: every core this process may use)")
+    parser.add_argument("--backend", choices=("process", "ray"), default="process",
+                        help="process: a local process pool; ray: Ray tasks (pip install -e '.[distributed]')")
+    parser.add_argument("--ray-address", default=None, help="a Ray cluster to join (default: start Ray locally with --workers CPUs)")
     parser.add_argument("--out", type=Path, default=Path("results/evaluation"))
     parser.add_argument("--no-plots", action="store_true")
     parser.add_argument("--trajectories", type=int, default=2, help="episodes per policy and motion drawn in top and depth views")
@@ -78,6 +82,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         args.workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
+    if args.ray_address is not None and args.backend != "ray":
+        parser.error("--ray-address needs --backend ray")
     for policy in args.policies:
         if ":" not in policy and policy not in SCRIPTED_POLICIES:
             parser.error(f"--policies: unknown policy {policy!r}; allowed: {' '.join(SCRIPTED_POLICIES)}, or ALGO:PATH")
@@ -390,6 +396,44 @@ def read_episode_log(path: Path, header: dict) -> dict[tuple, dict]:
     return done
 
 
+@contextmanager
+def episode_runner(args: argparse.Namespace, needed: bool):
+    """A function that runs jobs and yields their rows in the jobs' order: in this process, on a pool of
+    ``--workers`` fresh processes, or as Ray tasks (``--backend ray``, on ``--ray-address`` or a local
+    Ray with ``--workers`` CPUs). Every episode runs from its own seed, so the rows are the same."""
+    if args.backend == "ray" and needed:
+        try:
+            import ray
+        except ImportError:
+            raise SystemExit("error: --backend ray needs Ray: pip install -e '.[distributed]'") from None
+        started = not ray.is_initialized()
+        if started:
+            # The workers import this file's module and the project's packages from the project root: a
+            # cluster gets a copy of it (Ray's working_dir), a local Ray the path.
+            root = str(Path(__file__).resolve().parent)
+            if args.ray_address:
+                excludes = [".git", ".venv", ".ci-venv", "results", "runs", "reports"]
+                options = {"address": args.ray_address, "runtime_env": {"working_dir": root, "excludes": excludes}}
+            else:
+                options = {"num_cpus": args.workers, "include_dashboard": False, "runtime_env": {"env_vars": {"PYTHONPATH": root}}}
+            ray.init(log_to_driver=False, **options)
+        task = ray.remote(num_cpus=1)(run_episode)
+        try:
+            yield lambda jobs: (ray.get(ref) for ref in [task.remote(job) for job in jobs])
+        finally:
+            if started:
+                ray.shutdown()
+        return
+    # Fresh worker processes, not forks: a fork of a parent that has run torch (the models are loaded
+    # here to check them) can hang in torch's thread pool - a recurrent policy's workers never finished.
+    pool = ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) if args.workers > 1 and needed else None
+    try:
+        yield (lambda jobs: pool.map(run_episode, jobs, chunksize=4)) if pool else (lambda jobs: map(run_episode, jobs))
+    finally:
+        if pool:
+            pool.shutdown(cancel_futures=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from tqdm import tqdm
@@ -432,19 +476,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(jobs)} episodes: {len(args.policies)} policies x {len(args.initializers)} initializers x {len(args.motions)} motions x {args.episodes} seeds"
           + (f" ({len(jobs) - len(todo)} from {log_path})" if done else ""))
     with open(log_path, "a") as log, tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="episodes", unit="ep") as progress:
-        # Fresh worker processes, not forks: a fork of a parent that has run torch (the models are loaded
-        # here to check them) can hang in torch's thread pool - a recurrent policy's workers never finished.
-        pool = ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) if args.workers > 1 and todo else None
-        try:
-            finished = pool.map(run_episode, todo, chunksize=4) if pool else map(run_episode, todo)
-            for job, row in zip(todo, finished):
+        with episode_runner(args, bool(todo)) as run_all:
+            for job, row in zip(todo, run_all(todo)):
                 log.write(json.dumps({"key": episode_key(job), "row": row}) + "\n")
                 log.flush()
                 done[episode_key(job)] = row
                 progress.update()
-        finally:
-            if pool:
-                pool.shutdown(cancel_futures=True)
     rows = [done[episode_key(job)] for job in jobs]
     trajectories = [(row["policy"], row["motion"], row["seed"], row.pop("trajectory")) for row in rows if "trajectory" in row]
     summary = summarize(rows, config.episode.duration)
@@ -470,4 +507,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Run as the module ``evaluate``, not ``__main__``, so that a Ray worker can unpickle its jobs.
+    import evaluate
+
+    sys.exit(evaluate.main())

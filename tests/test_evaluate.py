@@ -42,6 +42,24 @@ def test_rows_are_the_same_with_one_worker_and_with_two(tmp_path):
     assert one == two
 
 
+def test_ray_writes_the_rows_of_the_process_pool_and_resumes_its_log(tmp_path):
+    """``--backend ray`` on a local 2-CPU Ray: the same rows as the process pool, and a run cut after
+    two episodes resumes from its log on Ray to the same results."""
+    pytest.importorskip("ray")
+    (tmp_path / "short.yaml").write_text("episode:\n  duration: 20.0\n")
+    flags = ["--policies", "helix", "--motions", "static", "cv", "--episodes", "2", "--no-plots", "--measurement", "geometric",
+             "--reflections", "off", "--config", str(tmp_path / "short.yaml"), "--workers", "2"]
+    assert evaluate.main(flags + ["--out", str(tmp_path / "pool")]) == 0
+    lines = (tmp_path / "pool" / "episodes.jsonl").read_text().splitlines()
+    (tmp_path / "ray").mkdir()
+    (tmp_path / "ray" / "episodes.jsonl").write_text("\n".join(lines[:3]) + "\n")
+    assert evaluate.main(flags + ["--backend", "ray", "--resume", "--out", str(tmp_path / "ray")]) == 0
+    pool, ray = (json.loads((tmp_path / name / "results.json").read_text())["episodes"] for name in ("pool", "ray"))
+    assert pool == ray
+    assert evaluate.main(flags + ["--backend", "ray", "--out", str(tmp_path / "ray-whole")]) == 0
+    assert json.loads((tmp_path / "ray-whole" / "results.json").read_text())["episodes"] == pool
+
+
 def test_bad_flags_are_named(capsys, tmp_path):
     with pytest.raises(SystemExit):
         evaluate.main(["--policies", "zigzag"])
@@ -49,6 +67,9 @@ def test_bad_flags_are_named(capsys, tmp_path):
     with pytest.raises(SystemExit):
         evaluate.main(["--episodes", "0"])
     assert "--episodes" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        evaluate.main(["--ray-address", "auto"])
+    assert "--ray-address needs --backend ray" in capsys.readouterr().err
     assert evaluate.main(["--config", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert evaluate.main(["--policies", "ppo:" + str(tmp_path / "none.zip"), "--out", str(tmp_path)]) == 2
