@@ -405,7 +405,8 @@ def episode_runner(args: argparse.Namespace, needed: bool):
         try:
             import ray
         except ImportError:
-            raise SystemExit("error: --backend ray needs Ray: pip install -e '.[distributed]'") from None
+            print("error: --backend ray needs Ray: pip install -e '.[distributed]'", file=sys.stderr)
+            raise SystemExit(2) from None
         started = not ray.is_initialized()
         if started:
             # The workers import this file's module and the project's packages from the project root: a
