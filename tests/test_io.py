@@ -1,0 +1,38 @@
+"""Atomic writes: a file is replaced whole or not at all."""
+
+import json
+
+import pytest
+
+from aasl_gym.io import atomic_write, atomic_write_json, atomic_write_text
+
+
+def test_a_write_replaces_the_file_and_leaves_no_temporary(tmp_path):
+    target = tmp_path / "sub" / "report.md"
+    atomic_write_text(target, "first")
+    atomic_write_text(target, "second")
+    assert target.read_text() == "second"
+    assert [p.name for p in target.parent.iterdir()] == ["report.md"]
+
+
+def test_a_failed_write_keeps_the_old_file_and_cleans_up(tmp_path):
+    target = tmp_path / "model.zip"
+    target.write_text("old")
+
+    def crash(tmp: str) -> None:
+        open(tmp, "w").write("half")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError, match="disk full"):
+        atomic_write(target, crash)
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["model.zip"]
+
+
+def test_json_is_strict(tmp_path):
+    """NaN is not JSON: it is refused rather than written as a token other readers reject."""
+    atomic_write_json(tmp_path / "ok.json", {"a": 1.5})
+    assert json.loads((tmp_path / "ok.json").read_text()) == {"a": 1.5}
+    with pytest.raises(ValueError):
+        atomic_write_json(tmp_path / "bad.json", {"a": float("nan")})
+    assert not (tmp_path / "bad.json").exists()
