@@ -303,7 +303,7 @@ class AASLEnv(gym.Env):
         estimate = self.tracker.position
         estimate_velocity = self.tracker.velocity
         jacobian = measurement_jacobian(estimate, estimate_velocity, self.reported_position, self.reported_velocity, self.fixed)
-        measured = bool(np.all(np.isfinite(z)))  # a lost frame (config.fault, or one the detector missed) is NaN
+        measured = bool(np.all(np.isfinite(z)))  # a lost frame (dropped by config.fault, or rejected by the detector) is NaN
         fim_logdet = self.information.step(dt, jacobian if measured else None, noise)
         if self.planner is not None:
             self.planner.observe(out.initialized, estimate, estimate_velocity, self.reported_position, self.reported_velocity)

@@ -341,9 +341,7 @@ class SourceTracker:
             self.bank = [self._hypothesis(*candidates[i], -0.5 * (chi_square[i] - chi_square[kept[0]]), time) for i in kept]
             return kept[0] >= len(running)
         fits = self._fit_window(len(burst.times), states[kept])
-        self.bank = [self._hypothesis(x, covariance, log_weight, time) for _, x, covariance, log_weight, _ in fits]
-        for hypothesis, fitted in zip(self.bank, fits):
-            hypothesis.resolved = fitted[4]
+        self._bank_from_fits(fits, time)
         return kept[fits[0][0]] >= len(running)
 
     @property
@@ -366,16 +364,15 @@ class SourceTracker:
         """``x`` moved onto the two neighbouring whole-period sheets (2, n): b_p -+ one wavelength, and the
         position moved along the direct RD's gradient (Newton steps at the latest receiver position) so
         that the predicted RD stays what it was."""
-        mobile, mobile_velocity = self.history[-1][2], self.history[-1][3]
-        range_difference = lambda state: direct_measurement(state[0:3], state[3:6], mobile, mobile_velocity, self.fixed)[0]  # noqa: E731
+        mobile = self.history[-1][2]
         neighbours = np.repeat(x[None], 2, axis=0)
         for neighbour, periods in zip(neighbours, (1.0, -1.0)):
             neighbour[-2] -= periods * self.wavelength
-            target = range_difference(x) + periods * self.wavelength
+            target = geometry.range_difference(x[0:3], mobile, self.fixed) + periods * self.wavelength
             for _ in range(3):
-                p = neighbour[0:3]
-                gradient = (p - mobile) / np.linalg.norm(p - mobile) - (p - self.fixed) / np.linalg.norm(p - self.fixed)
-                neighbour[0:3] = p + gradient * (target - range_difference(neighbour)) / max(gradient @ gradient, 1e-6)
+                (to_mobile, unit_mobile), (to_fixed, unit_fixed) = (geometry.ranges(neighbour[0:3], r) for r in (mobile, self.fixed))
+                gradient = unit_mobile - unit_fixed  # d RD / d p
+                neighbour[0:3] += gradient * (target - (to_mobile - to_fixed)) / max(gradient @ gradient, 1e-6)
         return neighbours
 
     def _check_sheets(self, time: float) -> bool:
@@ -393,10 +390,7 @@ class SourceTracker:
         if running > -self.config.filter.prune_log_ratio:
             return False
         logger.debug("t = %.1f s: a neighbouring whole-period sheet explains the window better; switching", time)
-        fits = fits[: self.config.initializer.hypotheses]
-        self.bank = [self._hypothesis(x, covariance, log_weight, time) for _, x, covariance, log_weight, _ in fits]
-        for hypothesis, fitted in zip(self.bank, fits):
-            hypothesis.resolved = fitted[4]
+        self._bank_from_fits(fits[: self.config.initializer.hypotheses], time)
         return True
 
     def _next_to_running(self, base: np.ndarray, running: int) -> np.ndarray:
@@ -441,6 +435,14 @@ class SourceTracker:
         behind = -0.5 * self.config.filter.prune_log_ratio
         return resolved + [(i, x, p, w + behind, False) for i, x, p, w, _ in coarse if i not in top[passed]]
 
+    def _bank_from_fits(self, fits: list[tuple[int, np.ndarray, np.ndarray, float, bool]], time: float) -> None:
+        """The bank becomes one fresh filter per window fit (:meth:`_fit_window`), started at ``time``."""
+        self.bank = []
+        for _, x, covariance, log_weight, resolved in fits:
+            hypothesis = self._hypothesis(x, covariance, log_weight, time)
+            hypothesis.resolved = resolved
+            self.bank.append(hypothesis)
+
     def _window_prior(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The window fits' prior, mean (C, n) and sd (n,): slow, plausible turn rates or accelerations,
         small clock-rate bias; each start keeps its own whole-period sheet (b_p)."""
@@ -479,13 +481,7 @@ class SourceTracker:
         :meth:`_sigma_measurements`, which serves the whole bank in one call); drop those whose
         covariance breaks or that turn implausible, and - for the paper's single filter, which has no
         re-seeding to recover with - inconsistent."""
-        predicted = []
-        for hypothesis in self.bank:
-            try:
-                hypothesis.ukf.predict(dt)
-            except np.linalg.LinAlgError:
-                continue
-            predicted.append(hypothesis)
+        predicted = self._predicted_bank(dt)
         if not predicted:
             self.bank = []
             return
@@ -543,20 +539,31 @@ class SourceTracker:
         nan2 = np.full(2, np.nan)
         if not self.initialized:
             return TrackerOutput(False, False, nan2, nan2)
-        kept = []
+        self.bank = self._predicted_bank(time - self.last_time)
+        self.last_time = time
+        restarted = not self.bank
+        if restarted:
+            self._restart(time, rng)
+        return TrackerOutput(True, restarted, nan2, nan2)
+
+    def _predicted_bank(self, dt: float) -> list[Hypothesis]:
+        """Every hypothesis predicted ``dt`` seconds on; one whose covariance breaks is dropped."""
+        predicted = []
         for hypothesis in self.bank:
             try:
-                hypothesis.ukf.predict(time - self.last_time)
+                hypothesis.ukf.predict(dt)
             except np.linalg.LinAlgError:
                 continue
-            kept.append(hypothesis)
-        self.last_time = time
-        self.bank = kept
-        if not kept:  # re-start on the last measurements; the new filters stand at the latest one's time
-            self.reinitializations += 1
-            self._start(self._lcmap_at(time), min(self.reinit_length, len(self.history)), rng)
-            self.last_time = self.history[-1][0]
-        return TrackerOutput(True, not kept, nan2, nan2)
+            predicted.append(hypothesis)
+        return predicted
+
+    def _restart(self, time: float, rng: np.random.Generator) -> None:
+        """No hypothesis is left: LC-MAP re-starts on the last ``reinit_window``; the new filters stand at
+        the latest measurement's time."""
+        logger.debug("every hypothesis diverged at t = %.1f s; re-initializing with LC-MAP", time)
+        self.reinitializations += 1
+        self._start(self._lcmap_at(time), min(self.reinit_length, len(self.history)), rng)
+        self.last_time = self.history[-1][0]
 
     def _resolve_ripple(self, hypothesis: Hypothesis, time: float) -> Hypothesis:
         """Where a hypothesis's position sd has just fallen within reach of the ripple
@@ -619,9 +626,7 @@ class SourceTracker:
         self.last_time = time
         self._assimilate(dt, z, noise, mobile, mobile_velocity, time)
         if not self.bank:
-            logger.debug("every hypothesis diverged at t = %.1f s; re-initializing with LC-MAP", time)
-            self.reinitializations += 1
-            self._start(self._lcmap_at(time), min(self.reinit_length, len(self.history)), rng)
+            self._restart(time, rng)
             return TrackerOutput(True, True, nan2, nan2)
         self._prune()
         jumped = False

@@ -60,11 +60,15 @@ def _trajectory(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndar
     return model.trajectory(states, burst.times - burst.times[-1])
 
 
+def _measure(burst: Burst, trajectory: np.ndarray) -> np.ndarray:
+    """h along trajectories (C, K, n), without their biases: (C, K, 2)."""
+    mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
+    return burst.measurement_function(trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position)
+
+
 def _predictions(burst: Burst, trajectory: np.ndarray) -> np.ndarray:
     """h along trajectories (C, K, n) plus their biases: (C, K, 2)."""
-    mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
-    z = burst.measurement_function(trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position)
-    return z + trajectory[..., -2:]
+    return _measure(burst, trajectory) + trajectory[..., -2:]
 
 
 def _whiteners(burst: Burst, trajectory: np.ndarray) -> np.ndarray:
@@ -97,8 +101,7 @@ def _jacobian(burst, model, states, white) -> np.ndarray:
     shift = STEP * np.eye(dim)[:moving, None, :]  # (moving, 1, n)
     shifted = np.concatenate([(states + shift).reshape(-1, dim), (states - shift).reshape(-1, dim), states])
     trajectory = _trajectory(burst, model, shifted)
-    mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
-    z = burst.measurement_function(trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position)
+    z = _measure(burst, trajectory)
     predicted = (z + trajectory[..., -2:])[: 2 * moving * count].reshape(2, moving, count, -1, 2)
     differences = list(predicted[0] - predicted[1])
     unbiased = z[2 * moving * count:]
@@ -108,6 +111,16 @@ def _jacobian(burst, model, states, white) -> np.ndarray:
         differences.append(ahead - behind)
     columns = [whiten(white, periodic_residual(difference, burst) / (2 * STEP)).reshape(count, -1) for difference in differences]
     return np.stack(columns, axis=-1)
+
+
+def _cost(measurement: np.ndarray, prior: np.ndarray, robust: bool) -> np.ndarray:
+    """The objective (C,) of whitened measurement residuals (C, 2K) and prior residuals (C, n)."""
+    return np.sum(robust_loss(measurement**2, robust), axis=1) + np.sum(prior**2, axis=1)
+
+
+def _normal_matrix(jacobian: np.ndarray, weights: np.ndarray, prior_sd: np.ndarray) -> np.ndarray:
+    """J^T W J + diag(1 / s^2): the Gauss-Newton normal matrix, and at the solution the information."""
+    return np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
 
 
 def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean: np.ndarray, prior_sd: np.ndarray,
@@ -123,28 +136,26 @@ def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean:
     damping = np.full(len(states), 1e-3)
     white = _whiteners(burst, _trajectory(burst, model, states))
     measurement, prior = _residuals(burst, model, states, white, prior_mean, prior_sd)
-    cost = np.sum(robust_loss(measurement**2, robust), axis=1) + np.sum(prior**2, axis=1)
-    # -d(whitened prediction)/d state at ``states``; a row is recomputed only where its step was taken
+    cost = _cost(measurement, prior, robust)
+    # d(whitened prediction)/d state at ``states``; a row is recomputed only where its step was taken
     # (a rejected step leaves the state, its whitener and so its Jacobian as they were).
-    jacobian = -_jacobian(burst, model, states, white)
+    jacobian = _jacobian(burst, model, states, white)
     for _ in range(iterations):
         weights = robust_weights(measurement, robust)
-        normal = np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
-        gradient = np.einsum("cmi,cm->ci", jacobian, weights * measurement) + prior / prior_sd
+        normal = _normal_matrix(jacobian, weights, prior_sd)
+        # The residuals fall as the predictions rise: their gradient carries -J.
+        gradient = prior / prior_sd - np.einsum("cmi,cm->ci", jacobian, weights * measurement)
         scale = np.diagonal(normal, axis1=1, axis2=2)
         step = -np.linalg.solve(normal + damping[:, None, None] * scale[:, None, :] * np.eye(model.dim), gradient[..., None])[..., 0]
         step *= np.minimum(1.0, MAX_POSITION_STEP / np.maximum(np.linalg.norm(step[:, 0:3], axis=1), 1e-12))[:, None]
         trial = states + step
         trial_white = _whiteners(burst, _trajectory(burst, model, trial))
         trial_measurement, trial_prior = _residuals(burst, model, trial, trial_white, prior_mean, prior_sd)
-        trial_cost = np.sum(robust_loss(trial_measurement**2, robust), axis=1) + np.sum(trial_prior**2, axis=1)
+        trial_cost = _cost(trial_measurement, trial_prior, robust)
         better = trial_cost < cost
         states[better], white[better], cost[better] = trial[better], trial_white[better], trial_cost[better]
         measurement[better], prior[better] = trial_measurement[better], trial_prior[better]
         damping = np.where(better, damping / 3, damping * 4)
         if better.any():
-            jacobian[better] = -_jacobian(burst, model, states[better], white[better])
-    jacobian = -jacobian
-    weights = robust_weights(measurement, robust)
-    information = np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
-    return WindowFit(states, cost, information)
+            jacobian[better] = _jacobian(burst, model, states[better], white[better])
+    return WindowFit(states, cost, _normal_matrix(jacobian, robust_weights(measurement, robust), prior_sd))
