@@ -193,7 +193,7 @@ class SignalConfig:
     min_range_difference_sd: float = 0.002  # m, floor of the filter's RD sd
     min_range_rate_difference_sd: float = 0.005  # m/s, floor of the filter's RRD sd
     # dB: a tone frame is a measurement only if, on each channel, the peak of its periodogram exceeds
-    # the noise per bin by this (a CFAR detector, acoustics.detection_statistic; noise alone passed 0 of 3,000)
+    # the noise per bin by this (a CFAR detector, frontend.detection_statistic; noise alone passed 0 of 3,000)
     detection_snr_db: float = 13.0
 
     def __post_init__(self) -> None:

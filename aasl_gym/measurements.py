@@ -12,7 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aasl_gym import acoustics, geometry
+from aasl_gym import geometry
+from aasl_gym.frontend import FrontEnd, Unwrapper, tone_measurement_sd
+from aasl_gym.synthesis import FrameFault, carrier_frequency, receiver_band
 from aasl_gym.config import EnvConfig, FaultConfig, WorldConfig
 
 
@@ -145,12 +147,12 @@ def navigation_covariance(config: EnvConfig) -> np.ndarray:
 
 def signal_noise_sd(config: EnvConfig, snr_mobile, snr_fixed) -> np.ndarray:
     """sd of [RD, RRD] (m, m/s), shape (..., 2), the filter is told for a frame at these in-band SNRs (linear): the
-    Cramer-Rao sd of :func:`~aasl_gym.acoustics.tone_measurement_sd` at the carrier's wavelength over the
+    Cramer-Rao sd of :func:`~aasl_gym.frontend.tone_measurement_sd` at the carrier's wavelength over the
     receiver band, times ``signal.sd_inflation``, floored at ``signal.min_*_sd`` (see :class:`SignalSensor`)."""
     source, sig = config.source, config.signal
-    band = acoustics.receiver_band(source.waveform, source.frequency)
-    wavelength = config.world.sound_speed / acoustics.carrier_frequency(source.waveform, source.frequency)
-    sd = np.stack(acoustics.tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], sig.frame_duration), axis=-1)
+    band = receiver_band(source.waveform, source.frequency)
+    wavelength = config.world.sound_speed / carrier_frequency(source.waveform, source.frequency)
+    sd = np.stack(tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], sig.frame_duration), axis=-1)
     return np.maximum(sig.sd_inflation * sd, [sig.min_range_difference_sd, sig.min_range_rate_difference_sd])
 
 
@@ -175,28 +177,6 @@ def expected_noise_covariance(config: EnvConfig, source_position: np.ndarray, mo
     covariance = np.zeros(sd.shape + (2,))
     covariance[..., 0, 0], covariance[..., 1, 1] = sd[..., 0] ** 2, sd[..., 1] ** 2
     return covariance + navigation_covariance(config)
-
-
-class Unwrapper:
-    """Whole-period unwrapping of a range-difference track (period = one wavelength, m)."""
-
-    def __init__(self, period: float | None):
-        self.period = period
-        self.previous: float | None = None
-
-    def reset(self) -> None:
-        self.previous = None
-
-    def __call__(self, range_difference: float) -> float:
-        if self.period is None:
-            return float(range_difference)
-        wrapped = float(geometry.wrap_to_period(range_difference, self.period))
-        if self.previous is None:
-            value = wrapped
-        else:
-            value = wrapped + self.period * np.round((self.previous - wrapped) / self.period)
-        self.previous = value
-        return value
 
 
 class GeometricSensor:
@@ -229,19 +209,19 @@ class GeometricSensor:
 
 
 class SignalSensor:
-    """z from the acoustic front end (SPEC section 3, :mod:`aasl_gym.acoustics`): one synthesized frame per
+    """z from the acoustic front end (SPEC section 3, :mod:`aasl_gym.synthesis`, :mod:`aasl_gym.frontend`): one synthesized frame per
     step, centred on the step's time, its RD unwrapped like the geometric sensor's.
 
     It also says how noisy that z is: ``covariance`` is the Cramer-Rao covariance of a tone frame at the
-    two channels' *measured* SNRs (:func:`~aasl_gym.acoustics.tone_measurement_sd`), times
+    two channels' *measured* SNRs (:func:`~aasl_gym.frontend.tone_measurement_sd`), times
     ``signal.sd_inflation`` in sd, floored at ``signal.min_*_sd``; the env gives it to the filter as
     this step's R (plus the navigation term). A sweep or hop gets the same formula at its carrier's
     wavelength over its whole band: its delay also comes from the correlation phase, and its measured
-    spread is 1.0-1.3x that sd (``tests/test_acoustics.py``), within the inflation. The tone's spread is
+    spread is 1.0-1.3x that sd (``tests/test_frontend.py``), within the inflation. The tone's spread is
     0.8-1.3x its bound. ``range_rate_bias`` (a clock-rate offset) is added to RRD.
 
     A frame is no measurement (z is NaN) when the ``fault`` option drops it, when the detector does not
-    hear the source in it (:meth:`~aasl_gym.acoustics.FrontEnd.heard`: a channel clipped, or one whose
+    hear the source in it (:meth:`~aasl_gym.frontend.FrontEnd.heard`: a channel clipped, or one whose
     narrowband detection statistic is below ``signal.detection_snr_db``, e.g. a silent hydrophone).
     A dropped frame is still synthesized, so that later frames see the same noise as without the fault.
     """
@@ -249,7 +229,7 @@ class SignalSensor:
     def __init__(self, config: EnvConfig, period: float | None):
         world, source, sig = config.world, config.source, config.signal
         self.config = config
-        self.front_end = acoustics.FrontEnd(
+        self.front_end = FrontEnd(
             waveform_kind=source.waveform, frequency=source.frequency, path=sig.path, frame=sig.frame_duration,
             guard=sig.guard, sample_rate=sig.sample_rate, envelope_rate=sig.envelope_rate, windows=sig.windows,
             sound_speed=world.sound_speed, source_level_db=source.source_level_db, noise_level_db=world.noise_level_db,
@@ -271,7 +251,7 @@ class SignalSensor:
     def measure(self, rng: np.random.Generator, time: float, position, velocity, mobile, mobile_velocity, fixed,
                 range_rate_bias: float = 0.0) -> np.ndarray:
         fault = self.fault if self.fault.active(time) else None
-        corrupt = acoustics.FrameFault(fault.kind, fault.channels, fault.clip_level) if fault and fault.kind != "dropped" else None
+        corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level) if fault and fault.kind != "dropped" else None
         result, self.snr, heard = self.front_end.measure(rng, time, position, velocity, mobile, mobile_velocity, fixed, corrupt)
         self.covariance = np.diag(signal_noise_sd(self.config, self.snr[0], self.snr[1]) ** 2)
         if fault and fault.kind == "dropped":

@@ -23,7 +23,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from aasl_gym import acoustics  # noqa: E402
+from aasl_gym import frontend, synthesis  # noqa: E402
 from bench_speed import env_step_rates  # noqa: E402  (run from the repository root as a script)
 
 FIXED = np.array([0.0, 0.0, -0.96])
@@ -48,29 +48,29 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=1, help="episodes per env timing")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
-    waveform = acoustics.Waveform.random("tone", rng)
+    waveform = synthesis.Waveform.random("tone", rng)
     for reflections in (False, True):
-        paths = acoustics.path_sources(SOURCE, SOURCE_VELOCITY, reflections, 60.0, -0.9, 0.3)
+        paths = synthesis.path_sources(SOURCE, SOURCE_VELOCITY, reflections, 60.0, -0.9, 0.3)
         for label, baseband, rate in (("fast (baseband, 10 kHz)", True, 10_000.0), ("hardware (real, 200 kHz)", False, 200_000.0)):
             def synthesize():
-                return acoustics.synthesize(waveform, 3.0, FRAME + 2 * GUARD, rate, baseband, paths, MOBILE, MOBILE_VELOCITY,
+                return synthesis.synthesize(waveform, 3.0, FRAME + 2 * GUARD, rate, baseband, paths, MOBILE, MOBILE_VELOCITY,
                                             FIXED, 1500.0, 140.0, 80.0, rng)
 
             channel = synthesize()
-            envelope = acoustics.envelopes(channel, waveform, 10_000.0, GUARD)
-            track = acoustics.delay_track(envelope, waveform, 0.03, noise_level_db=80.0)
+            envelope = frontend.envelopes(channel, waveform, 10_000.0, GUARD)
+            track = frontend.delay_track(envelope, waveform, 0.03, noise_level_db=80.0)
             costs = {
                 "synthesis": median_ms(synthesize, args.repeats),
-                "filtering": median_ms(lambda: acoustics.envelopes(channel, waveform, 10_000.0, GUARD), args.repeats),
-                "correlation": median_ms(lambda: acoustics.delay_track(envelope, waveform, 0.03, noise_level_db=80.0), args.repeats),
-                "TDOA + FDOA": median_ms(lambda: acoustics.tdoa_fdoa(track, 1500.0), args.repeats),
+                "filtering": median_ms(lambda: frontend.envelopes(channel, waveform, 10_000.0, GUARD), args.repeats),
+                "correlation": median_ms(lambda: frontend.delay_track(envelope, waveform, 0.03, noise_level_db=80.0), args.repeats),
+                "TDOA + FDOA": median_ms(lambda: frontend.tdoa_fdoa(track, 1500.0), args.repeats),
             }
             line = ", ".join(f"{name} {cost:.2f} ms" for name, cost in costs.items())
             print(f"reflections {'on ' if reflections else 'off'} {label}: {line}, total {sum(costs.values()):.2f} ms")
             if not baseband:
                 rows = np.array([channel.mobile, channel.fixed])  # laid out as the filtering lays them out
                 # Timed in alternation, so that both see the machine in the same state; the median ratio.
-                pairs = [(median_ms(lambda: acoustics.envelopes(channel, waveform, 10_000.0, GUARD), 1),
+                pairs = [(median_ms(lambda: frontend.envelopes(channel, waveform, 10_000.0, GUARD), 1),
                           median_ms(lambda: [np.fft.rfft(row) for row in rows], 1)) for _ in range(5 * args.repeats)]
                 ratio = statistics.median(filtering / ffts for filtering, ffts in pairs)
                 ffts = statistics.median(ffts for _, ffts in pairs)

@@ -1,9 +1,10 @@
-"""The acoustic front end against the geometry: waveforms, synthesis, the SNR model, [RD, RRD] from two channels."""
+"""The acoustic front end against the geometry: [RD, RRD] from two synthesized channels, the SNR it measures,
+its detector, the Cramer-Rao sd and the unwrapping of a whole episode."""
 
 import numpy as np
 import pytest
 
-from aasl_gym import acoustics, geometry
+from aasl_gym import bandpass, frontend, geometry, synthesis
 
 FIXED = np.array([0.0, 0.0, -0.96])
 C = 1500.0
@@ -20,22 +21,9 @@ def scene(rng):
 def measure(waveform, source, source_velocity, mobile, mobile_velocity, baseband=True, noise_level_db=None, rng=None, guard=0.02):
     """One 0.2 s frame (plus ``guard`` s each side, dropped after filtering) through the front end."""
     rate = 10_000.0 if baseband else 200_000.0
-    paths = acoustics.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
-    channel = acoustics.synthesize(waveform, 3.0, 0.2 + 2 * guard, rate, baseband, paths, mobile, mobile_velocity, FIXED, C, 140.0, noise_level_db, rng)
-    return acoustics.estimate(acoustics.envelopes(channel, waveform, 10_000.0, guard), waveform, C, MAX_DELAY, noise_level_db=noise_level_db)
-
-
-@pytest.mark.parametrize("kind", ["tone", "sweep", "hop"])
-def test_waveform_phase_is_continuous_and_its_rate_is_the_frequency(kind, rng):
-    waveform = acoustics.Waveform.random(kind, rng)
-    t = np.linspace(-1.0, 2.0, 300_001)  # spans several sweeps / hops, and negative emission times
-    phase = waveform.phase_at(t)
-    rate = np.diff(phase) / np.diff(t) / (2 * np.pi)
-    midpoint = 0.5 * (t[1:] + t[:-1])
-    # Continuous: no jump beyond one step's worth of the highest frequency.
-    assert np.max(np.abs(np.diff(phase))) < 2 * np.pi * 1600 * (t[1] - t[0])
-    away_from_switches = np.abs(np.diff(waveform.frequency_at(t))) == 0
-    np.testing.assert_allclose(rate[away_from_switches], waveform.frequency_at(midpoint)[away_from_switches], atol=1e-3)
+    paths = synthesis.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
+    channel = synthesis.synthesize(waveform, 3.0, 0.2 + 2 * guard, rate, baseband, paths, mobile, mobile_velocity, FIXED, C, 140.0, noise_level_db, rng)
+    return frontend.estimate(frontend.envelopes(channel, waveform, 10_000.0, guard), waveform, C, MAX_DELAY, noise_level_db=noise_level_db)
 
 
 @pytest.mark.parametrize("kind", ["tone", "sweep", "hop"])
@@ -51,7 +39,7 @@ def test_noise_free_front_end_matches_the_geometry(kind, rng):
     higher-frequency one, so a hop's delay track is jittered in time by up to a quarter dwell)."""
     for _ in range(5):
         source, source_velocity, mobile, mobile_velocity = scene(rng)
-        waveform = acoustics.Waveform.random(kind, rng)
+        waveform = synthesis.Waveform.random(kind, rng)
         result = measure(waveform, source, source_velocity, mobile, mobile_velocity)
         rd = geometry.range_difference(source, mobile, FIXED)
         rrd = geometry.range_rate_difference(source, source_velocity, mobile, mobile_velocity, FIXED)
@@ -72,9 +60,9 @@ def test_fdoa_sign_follows_the_spec(rng):
     source, source_velocity = np.array([5.0, 0.0, -10.0]), np.zeros(3)
     mobile = np.array([20.0, 0.0, -10.0])
     mobile_velocity = np.array([1.5, 0.0, 0.0])  # straight away from the source
-    waveform = acoustics.Waveform.random("tone", rng)
-    paths = acoustics.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
-    channel = acoustics.synthesize(waveform, 3.0, 0.2, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
+    waveform = synthesis.Waveform.random("tone", rng)
+    paths = synthesis.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
+    channel = synthesis.synthesize(waveform, 3.0, 0.2, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
 
     def frequency(envelope):
         return waveform.frequency + np.angle(np.vdot(envelope[:-1], envelope[1:])) * channel.rate / (2 * np.pi)
@@ -92,42 +80,27 @@ def test_hardware_rate_and_baseband_paths_agree(kind, rd_tolerance, rrd_toleranc
     free: a tone within 2 mm in RD and 5 mm/s in RRD, a sweep within 2 cm and 2 cm/s."""
     for _ in range(3):
         source, source_velocity, mobile, mobile_velocity = scene(rng)
-        waveform = acoustics.Waveform.random(kind, rng)
+        waveform = synthesis.Waveform.random(kind, rng)
         fast = measure(waveform, source, source_velocity, mobile, mobile_velocity, baseband=True)
         hardware = measure(waveform, source, source_velocity, mobile, mobile_velocity, baseband=False)
         assert hardware.range_difference == pytest.approx(fast.range_difference, abs=rd_tolerance)
         assert hardware.range_rate_difference == pytest.approx(fast.range_rate_difference, abs=rrd_tolerance)
 
 
-def test_noise_power_in_the_band_is_the_noise_level(rng):
-    """White noise synthesized for a noise level of N dB has N dB of power inside the receiver band."""
-    waveform = acoustics.Waveform.random("tone", rng)
-    level = 80.0
-    for baseband, rate in ((False, 200_000.0), (True, 10_000.0)):
-        silent = acoustics.synthesize(waveform, 0.0, 2.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng)
-        spectrum = np.abs(np.fft.fft(silent.mobile)) ** 2 / len(silent.times) ** 2
-        frequencies = np.fft.fftfreq(len(silent.times), 1 / rate) + (waveform.carrier if baseband else 0.0)
-        low, high = waveform.band
-        magnitude = frequencies if baseband else np.abs(frequencies)  # a real signal's band shows on both sides
-        in_band = spectrum[(magnitude >= low) & (magnitude <= high)].sum()
-        power = in_band / 2 if baseband else in_band  # an envelope carries twice the real signal's power
-        assert 10 * np.log10(power) == pytest.approx(level, abs=0.3)
-
-
 @pytest.mark.parametrize("kind", ["tone", "hop"])
 def test_filtered_noise_matches_its_closed_form_on_both_paths(kind, rng):
     """Noise alone through either path's band-pass: the envelope's power is 2 N B_n / B (B_n the
-    integral of |H|^4, :func:`~aasl_gym.acoustics.noise_bandwidth`) and its one-sample correlation is
-    :func:`~aasl_gym.acoustics.noise_lag_product`, within 4 % over 4 s of samples. The envelope's
+    integral of |H|^4, :func:`~aasl_gym.bandpass.noise_bandwidth`) and its one-sample correlation is
+    :func:`~aasl_gym.frontend.noise_lag_product`, within 4 % over 4 s of samples. The envelope's
     mirror band (negative frequencies) must not let noise through."""
-    waveform = acoustics.Waveform.random(kind, rng)
+    waveform = synthesis.Waveform.random(kind, rng)
     level, band = 80.0, waveform.band
     for baseband, rate in ((True, 10_000.0), (False, 200_000.0)):
-        channel = acoustics.synthesize(waveform, 0.0, 4.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng)
-        noise = acoustics.envelopes(channel, waveform, 10_000.0, 0.02).fixed
-        power = 2 * 10 ** (level / 10) * acoustics.noise_bandwidth(band) / (band[1] - band[0])
+        channel = synthesis.synthesize(waveform, 0.0, 4.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng)
+        noise = frontend.envelopes(channel, waveform, 10_000.0, 0.02).fixed
+        power = 2 * 10 ** (level / 10) * bandpass.noise_bandwidth(band) / (band[1] - band[0])
         assert np.mean(np.abs(noise) ** 2) == pytest.approx(power, rel=0.04)
-        lag_product = acoustics.noise_lag_product(level, band, waveform.carrier, 10_000.0)
+        lag_product = frontend.noise_lag_product(level, band, waveform.carrier, 10_000.0)
         assert abs(np.vdot(noise[:-1], noise[1:]) / (len(noise) - 1) - lag_product) < 0.04 * abs(lag_product)
 
 
@@ -138,7 +111,7 @@ def test_range_difference_noise_follows_the_cramer_rao_bound(rng):
     Above the estimator's threshold (in-band SNR 8 and 18 dB here) the spread sits within 0.8-1.3 x
     the bound and falls 10 dB per 10 dB of SNR (slope within 20 %)."""
     source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
-    waveform = acoustics.Waveform.random("tone", rng)
+    waveform = synthesis.Waveform.random("tone", rng)
     wavelength, band, frame = C / waveform.frequency, 200.0, 0.2
     rd = geometry.range_difference(source, mobile, FIXED)
     spreads, bounds = [], []
@@ -165,10 +138,10 @@ def test_with_reflections_the_tone_front_end_measures_the_phasor_model(rng):
     largest_multipath_effect = 0.0
     for _ in range(6):
         source, source_velocity, mobile, mobile_velocity = scene(rng)
-        waveform = acoustics.Waveform.random("tone", rng)
-        paths = acoustics.path_sources(source, source_velocity, True, 60.0, -0.9, 0.3)
-        channel = acoustics.synthesize(waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
-        result = acoustics.estimate(acoustics.envelopes(channel, waveform, 10_000.0, 0.02), waveform, C, MAX_DELAY)
+        waveform = synthesis.Waveform.random("tone", rng)
+        paths = synthesis.path_sources(source, source_velocity, True, 60.0, -0.9, 0.3)
+        channel = synthesis.synthesize(waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
+        result = frontend.estimate(frontend.envelopes(channel, waveform, 10_000.0, 0.02), waveform, C, MAX_DELAY)
         wavenumber, wavelength = 2 * np.pi * waveform.frequency / C, C / waveform.frequency
         offsets = np.linspace(-0.1, 0.1, 201)[:, None]
         model_rd, _ = geometry.phasor_multipath(source + source_velocity * offsets, source_velocity, mobile + mobile_velocity * offsets,
@@ -185,11 +158,9 @@ def test_a_whole_episode_unwraps_without_a_slip(rng):
     """120 s of frames (5 Hz) while the robot circles the pod at 1 m/s and the source cruises: the
     front end's wrapped RD, unwrapped against the previous value, stays the true RD plus one fixed
     whole number of wavelengths (default noise level, SNR about 30 dB); RD moves by many wavelengths."""
-    from aasl_gym.measurements import Unwrapper
-
-    waveform = acoustics.Waveform.random("tone", rng)
+    waveform = synthesis.Waveform.random("tone", rng)
     wavelength = C / waveform.frequency
-    unwrapper = Unwrapper(wavelength)
+    unwrapper = frontend.Unwrapper(wavelength)
     source, source_velocity = np.array([10.0, -5.0, -12.0]), np.array([0.4, 0.3, 0.0])
     offsets, truths = [], []
     for time in np.arange(0.0, 120.0, 0.2):
@@ -211,14 +182,14 @@ def test_tone_measurement_sd_matches_the_spread_of_the_estimates(rng):
     """The RD and RRD sd the filter is told (the Cramer-Rao values from the frame's SNRs) against the
     spread of 300 noisy frames at an in-band SNR near 15 dB: within 0.8-1.3x each."""
     source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
-    waveform = acoustics.Waveform.random("tone", rng)
+    waveform = synthesis.Waveform.random("tone", rng)
     wavelength, noise_level = C / waveform.frequency, 104.0
     rd = geometry.range_difference(source, mobile, FIXED)
     results = [measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng) for _ in range(300)]
     rd_errors = [geometry.wrap_to_period(r.range_difference - rd, wavelength) for r in results]
     rrd_errors = [r.range_rate_difference for r in results]
     snr = [10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10) for receiver in (mobile, FIXED)]
-    sd_rd, sd_rrd = acoustics.tone_measurement_sd(snr[0], snr[1], wavelength, 200.0, 0.2)
+    sd_rd, sd_rrd = frontend.tone_measurement_sd(snr[0], snr[1], wavelength, 200.0, 0.2)
     assert 0.8 < np.std(rd_errors) / sd_rd < 1.3
     assert 0.8 < np.std(rrd_errors) / sd_rrd < 1.3
 
@@ -228,7 +199,7 @@ def test_front_end_measures_the_snr_model(path, rng):
     """Each channel's SNR measured from its band power (the noise level known) is the SNR model's,
     source level - 20 log10(range) - noise level, within 1 dB from 15 to 40 dB."""
     source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
-    front_end = acoustics.FrontEnd(path=path)
+    front_end = frontend.FrontEnd(path=path)
     for noise_level in (78.0, 100.0):
         front_end.noise_level_db = noise_level
         snrs = np.array([front_end.measure(rng, 1.0, source, np.zeros(3), mobile, np.zeros(3), FIXED)[1] for _ in range(10)])
@@ -243,12 +214,12 @@ def test_wideband_spread_is_covered_by_the_filter_noise_model(kind, rng):
     is only 4 % above the carrier). Against 200 noisy frames at in-band SNRs near 12 and 22 dB the
     spread of RD and RRD lies within 0.8-1.4x that sd, so ``signal.sd_inflation`` (1.5) covers it."""
     source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
-    waveform = acoustics.Waveform.random(kind, rng)
+    waveform = synthesis.Waveform.random(kind, rng)
     rd = geometry.range_difference(source, mobile, FIXED)
     for noise_level in (104.0, 94.0):
         results = [measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng) for _ in range(200)]
         snr = [10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10) for receiver in (mobile, FIXED)]
-        sd_rd, sd_rrd = acoustics.tone_measurement_sd(snr[0], snr[1], C / waveform.carrier, waveform.band[1] - waveform.band[0], 0.2)
+        sd_rd, sd_rrd = frontend.tone_measurement_sd(snr[0], snr[1], C / waveform.carrier, waveform.band[1] - waveform.band[0], 0.2)
         assert 0.8 < np.std([r.range_difference - rd for r in results]) / sd_rd < 1.4
         assert 0.8 < np.std([r.range_rate_difference for r in results]) / sd_rrd < 1.4
 
@@ -259,7 +230,7 @@ def test_a_delay_longer_than_a_window_is_measured(rng):
     geometry within the noise-free bounds above."""
     source, source_velocity = np.array([1.0, 0.5, -5.0]), np.array([0.3, 0.0, 0.0])
     mobile, mobile_velocity = np.array([38.0, 0.0, -5.0]), np.array([0.0, 1.0, 0.0])
-    waveform = acoustics.Waveform.random("sweep", rng)
+    waveform = synthesis.Waveform.random("sweep", rng)
     result = measure(waveform, source, source_velocity, mobile, mobile_velocity)
     rd = geometry.range_difference(source, mobile, FIXED)
     assert rd > 0.02 * C
@@ -274,11 +245,11 @@ def test_the_detector_hears_a_weak_tone_but_not_a_silent_or_clipped_channel(rng)
     frames here; a tone at about 0 dB band SNR gathers the band's ~40 bins' worth of power into one
     (+16 dB) and is heard in every frame; a clipped channel (many samples at full scale) never is."""
     source, mobile = np.array([8.0, -6, -12]), np.array([14.0, 4, -8])
-    front_end = acoustics.FrontEnd()
+    front_end = frontend.FrontEnd()
     measure = lambda fault=None: front_end.measure(rng, 1.0, source, np.zeros(3), mobile, np.zeros(3), FIXED, fault)  # noqa: E731
-    silent = acoustics.FrameFault("silent", (True, False))
+    silent = synthesis.FrameFault("silent", (True, False))
     assert not any(measure(silent)[2] for _ in range(200))
-    clipped = acoustics.FrameFault("clipped", (False, True), clip_level=0.5)
+    clipped = synthesis.FrameFault("clipped", (False, True), clip_level=0.5)
     assert not any(measure(clipped)[2] for _ in range(20))
     assert all(measure()[2] for _ in range(20))
     front_end.noise_level_db = 140.0 - 20 * np.log10(np.linalg.norm(source - FIXED))  # 0 dB at the fixed one
@@ -293,6 +264,6 @@ def test_saturation_is_detected_on_both_paths(rng):
     times = np.arange(2000) / 10_000
     for samples in (np.cos(2 * np.pi * 1000 * times) + rng.normal(0, 0.3, 2000),
                     np.exp(2j * np.pi * 3 * times) + rng.normal(0, 0.3, 2000) + 1j * rng.normal(0, 0.3, 2000)):
-        assert not acoustics.saturated(samples)
+        assert not frontend.saturated(samples)
         for level in (0.1, 0.5, 0.9):
-            assert acoustics.saturated(acoustics.clipped(samples, level))
+            assert frontend.saturated(synthesis.clipped(samples, level))
