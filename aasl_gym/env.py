@@ -15,10 +15,11 @@ from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_con
 from aasl_gym.estimator import SourceTracker
 from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
-from aasl_gym.measurements import GeometricSensor, Propagation, SignalSensor, direct_measurement, model_snr, navigation_covariance
+from aasl_gym.measurement_models import direct_measurement, navigation_covariance
 from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 from aasl_gym.planning import GreedyPlanner
+from aasl_gym.sensors import make_sensor
 
 # Keyword arguments of gym.make / AASLEnv that override one config field each.
 OVERRIDES: dict[str, tuple[str, str]] = {
@@ -215,13 +216,7 @@ class AASLEnv(gym.Env):
         # The navigation term of R_eff (zero without compensation); geometric mode's R is fixed, signal mode's per frame.
         self.navigation_covariance = navigation_covariance(cfg)
         self.filter_covariance = self.acoustic_covariance + self.navigation_covariance
-        self.propagation = Propagation.from_config(cfg.world, cfg.source.frequency)
-        period = cfg.wavelength if cfg.source.waveform == "tone" else None
-        self.signal_mode = cfg.measurement.mode == "signal"
-        if self.signal_mode:
-            self.sensor = SignalSensor(cfg, period)
-        else:
-            self.sensor = GeometricSensor(measurement_sd, self.propagation, cfg.world.reflections, period, cfg.fault)
+        self.sensor = make_sensor(cfg)
         self.tracker = SourceTracker(cfg, self.source_region, self.acoustic_covariance)
         self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
@@ -294,7 +289,7 @@ class AASLEnv(gym.Env):
         z = self.sensor.measure(rng, self._time, self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed, cfg.source.range_rate_bias)
         # Signal mode: the front end says how noisy this frame is (from its SNRs); geometric: a fixed R_ac.
         # The tracker adds the navigation term itself, from its model at each hypothesis.
-        acoustic = self.sensor.covariance if self.signal_mode else self.acoustic_covariance
+        acoustic = self.sensor.covariance()
         noise = acoustic + self.navigation_covariance  # the direct path's R_eff, for the information reward
         self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, dt)
 
@@ -346,7 +341,7 @@ class AASLEnv(gym.Env):
             "position_covariance": self.tracker.position_covariance,
             "measurement": np.asarray(z, dtype=float),
             "measurement_true": direct_measurement(self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed),
-            "snr_db": float(10 * np.log10(np.min(self.sensor.snr))) if self.signal_mode else self._snr_db(),
+            "snr_db": float(10 * np.log10(np.min(self.sensor.snr()))),
             "initialized": out.initialized,
             "converged": bool(converged),
             "reinitialized": out.reinitialized,
@@ -362,11 +357,6 @@ class AASLEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return self._observation(), reward, terminated, truncated, info
-
-    def _snr_db(self) -> float:
-        """SNR of the weaker channel by the SNR model (dB): source level - 20 log10(range / 1 m) - noise level."""
-        receivers = np.array([self.receiver_position, self.fixed])
-        return float(10 * np.log10(np.min(model_snr(self.config, self.source.position, receivers))))
 
     def episode_summary(self) -> dict[str, Any]:
         """The episode's metrics so far (added to ``info`` on the last step)."""

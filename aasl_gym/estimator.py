@@ -75,7 +75,7 @@ from aasl_gym.config import EnvConfig
 from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_weights
 from aasl_gym.fisher import information_prior
 from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, robust_loss
-from aasl_gym.measurements import (
+from aasl_gym.measurement_models import (
     Propagation, direct_measurement, multipath_measurement, multipath_spread, receiver_jacobian, receiver_noise,
 )
 from aasl_gym.motion import Box, receiver_region

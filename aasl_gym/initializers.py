@@ -43,7 +43,7 @@ import numpy as np
 
 from aasl_gym import geometry
 from aasl_gym.config import InitializerConfig
-from aasl_gym.measurements import receiver_jacobian, receiver_noise
+from aasl_gym.measurement_models import receiver_jacobian, receiver_noise
 from aasl_gym.motion import Box, coordinated_turn_displacement
 
 logger = logging.getLogger(__name__)

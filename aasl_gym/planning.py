@@ -5,7 +5,7 @@ speed, and standing still) by the position information the robot would hold afte
 ``horizon`` seconds, evaluated at the current *estimate* (no ground truth): the extended-Kalman
 covariance recursion of :mod:`aasl_gym.fisher` on [p, v, b_p, b_v] with the constant-velocity model,
 the measurement Jacobian at the estimate moving on its estimated velocity, and the noise a frame there
-would have (:func:`aasl_gym.measurements.expected_noise_covariance`). Commands whose straight path
+would have (:func:`aasl_gym.measurement_models.expected_noise_covariance`). Commands whose straight path
 would leave the robot's region or enter the keep-out sphere are not taken while any other is open.
 
 It looks one decision ahead (SPEC section 6) but holds each command for ``horizon`` seconds rather
@@ -28,7 +28,7 @@ from aasl_gym.filters import ConstantVelocity
 from aasl_gym.fisher import (
     InformationTracker, cv_transition_matrix, information_prior, measurement_jacobian, position_information_logdet, updated_covariance,
 )
-from aasl_gym.measurements import expected_noise_covariance
+from aasl_gym.measurement_models import expected_noise_covariance
 from aasl_gym.motion import receiver_region
 
 

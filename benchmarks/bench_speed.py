@@ -27,7 +27,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as Fil
 import aasl_gym  # noqa: E402,F401
 from aasl_gym.config import FilterConfig  # noqa: E402
 from aasl_gym.filters import ConstantVelocity, UnscentedKalmanFilter  # noqa: E402
-from aasl_gym.measurements import direct_measurement  # noqa: E402
+from aasl_gym.measurement_models import direct_measurement  # noqa: E402
 
 FIXED = np.array([0.0, 0, -0.96])
 R = np.diag([0.05**2, 0.02**2])

@@ -25,7 +25,7 @@ import numpy as np
 from aasl_gym.config import load_config
 from aasl_gym.env import AASLEnv
 from aasl_gym.io import atomic_write_text
-from aasl_gym.measurements import direct_measurement
+from aasl_gym.measurement_models import direct_measurement
 from aasl_gym.motion import SourceState, advance_source
 
 

@@ -6,7 +6,7 @@ import pytest
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.initializers import Burst
-from aasl_gym.measurements import direct_measurement
+from aasl_gym.measurement_models import direct_measurement
 
 STUDY = EnvConfig().replace(world={"reflections": False}, filter={"multipath": "none"}, source={"motion": "static"})
 

@@ -8,7 +8,7 @@ from scipy.stats import multivariate_normal
 
 from aasl_gym.config import FilterConfig
 from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter
-from aasl_gym.measurements import direct_measurement
+from aasl_gym.measurement_models import direct_measurement
 
 FIXED = np.array([0.0, 0, -0.96])
 

@@ -14,7 +14,7 @@ from aasl_gym.fisher import (
     position_information_logdet,
     updated_covariance,
 )
-from aasl_gym.measurements import direct_measurement
+from aasl_gym.measurement_models import direct_measurement
 
 FIXED = np.array([0.0, 0.0, -0.96])
 

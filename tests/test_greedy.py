@@ -6,7 +6,7 @@ import pytest
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.fisher import position_information_logdet, updated_covariance
-from aasl_gym.measurements import expected_noise_covariance, navigation_covariance
+from aasl_gym.measurement_models import expected_noise_covariance, navigation_covariance
 from agents import make_policy
 from aasl_gym.planning import GreedyPlanner, candidate_directions
 
@@ -20,7 +20,7 @@ def test_expected_noise_is_what_the_front_end_tells_the_filter():
     for _ in range(20):
         *_, info = env.step(np.zeros(3))
         planned = expected_noise_covariance(env.config, info["source_position"], info["receiver_position"])
-        told = env.sensor.covariance + env.navigation_covariance
+        told = env.sensor.covariance() + env.navigation_covariance
         np.testing.assert_allclose(np.sqrt(np.diag(planned)), np.sqrt(np.diag(told)), rtol=0.15)
     geometric = EnvConfig().replace(measurement={"mode": "geometric"})
     planned = expected_noise_covariance(geometric, np.zeros((4, 3)), np.ones((4, 3)))

@@ -6,7 +6,7 @@ import pytest
 from aasl_gym import geometry
 from aasl_gym.config import InitializerConfig
 from aasl_gym.initializers import Burst, CandidateMotion, _predicted, feasible_offsets, fibonacci_directions, locus_points, make_initializer
-from aasl_gym.measurements import direct_measurement
+from aasl_gym.measurement_models import direct_measurement
 from aasl_gym.motion import Box
 
 FIXED = np.array([0.0, 0, -0.96])

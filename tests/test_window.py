@@ -7,7 +7,7 @@ import pytest
 from aasl_gym.config import FilterConfig
 from aasl_gym.filters import make_motion_model
 from aasl_gym.initializers import Burst
-from aasl_gym.measurements import direct_measurement
+from aasl_gym.measurement_models import direct_measurement
 from aasl_gym.window import fit_window, subsample
 
 FIXED = np.array([0.0, 0.0, -0.96])

@@ -1,9 +1,14 @@
-"""Measurement models: what the world produces ([RD, RRD] with multipath) and what the filter assumes.
+"""The filter's measurement models: what [RD, RRD] a source state produces and how noisy the filter
+takes it to be.
 
-``z = [RD, RRD]`` in metres and m/s. For a tone the RD is known only modulo one wavelength: the first
-value is wrapped to [-lambda/2, lambda/2) and every later one is unwrapped to the whole number of
-wavelengths nearest the previous unwrapped value, so the track carries a whole-period offset fixed at
-the episode's start; the estimator holds it in its range-difference bias ``b_p``.
+``z = [RD, RRD]`` in metres and m/s (SPEC section 2). :func:`direct_measurement` is the direct path;
+:func:`multipath_measurement` adds the surface and bed images under the first-order ``linear`` or the
+exact narrowband ``phasor`` model. The receiver Jacobians and :func:`receiver_noise` turn the robot's
+navigation errors into measurement noise (R_eff); :func:`multipath_spread` is the phasor ripple a
+filter that cannot yet resolve it treats as noise. The noise side: :func:`navigation_covariance`,
+the SNR model (:func:`model_snr`), the sd the filter is told at a frame's SNRs
+(:func:`signal_noise_sd`) and the R a planner expects ahead of a frame
+(:func:`expected_noise_covariance`). The sensors that produce z are in :mod:`aasl_gym.sensors`.
 """
 
 from __future__ import annotations
@@ -13,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from aasl_gym import geometry
-from aasl_gym.frontend import FrontEnd, Unwrapper, tone_measurement_sd
-from aasl_gym.synthesis import FrameFault, carrier_frequency, receiver_band
-from aasl_gym.config import EnvConfig, FaultConfig, WorldConfig
+from aasl_gym.config import EnvConfig, WorldConfig
+from aasl_gym.frontend import tone_measurement_sd
+from aasl_gym.synthesis import carrier_frequency, receiver_band
 
 
 @dataclass(frozen=True)
@@ -29,7 +34,8 @@ class Propagation:
 
     @classmethod
     def from_config(cls, world: WorldConfig, frequency: float) -> "Propagation":
-        return cls(world.water_depth, world.surface_reflection, world.bed_reflection, 2 * np.pi * frequency / world.sound_speed)
+        return cls(world.water_depth, world.surface_reflection, world.bed_reflection,
+                   2 * np.pi * frequency / world.sound_speed)
 
 
 def direct_measurement(position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
@@ -38,20 +44,24 @@ def direct_measurement(position, velocity, mobile, mobile_velocity, fixed) -> np
     distance_mobile, unit_mobile = geometry.ranges(position, mobile)
     distance_fixed, unit_fixed = geometry.ranges(position, fixed)
     rd = distance_mobile - distance_fixed
-    rrd = geometry.range_rate(unit_mobile, velocity, mobile_velocity) - geometry.range_rate(unit_fixed, velocity, geometry.ZERO3)
+    rrd = (geometry.range_rate(unit_mobile, velocity, mobile_velocity)
+           - geometry.range_rate(unit_fixed, velocity, geometry.ZERO3))
     return np.stack([rd, rrd], axis=-1)
 
 
-def multipath_measurement(model: str, propagation: Propagation, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+def multipath_measurement(model: str, propagation: Propagation, position, velocity, mobile, mobile_velocity,
+                          fixed) -> np.ndarray:
     """[RD, RRD] under ``model``: ``none`` (direct path), ``linear`` (first-order) or ``phasor`` (exact tone)."""
     if model == "none":
         return direct_measurement(position, velocity, mobile, mobile_velocity, fixed)
     p = propagation
     if model == "linear":
-        rd, rrd = geometry.linear_multipath(position, velocity, mobile, mobile_velocity, fixed, p.water_depth, p.surface_reflection, p.bed_reflection)
+        rd, rrd = geometry.linear_multipath(position, velocity, mobile, mobile_velocity, fixed, p.water_depth,
+                                            p.surface_reflection, p.bed_reflection)
     elif model == "phasor":
         rd, rrd = geometry.phasor_multipath(
-            position, velocity, mobile, mobile_velocity, fixed, p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber
+            position, velocity, mobile, mobile_velocity, fixed, p.water_depth, p.surface_reflection, p.bed_reflection,
+            p.wavenumber,
         )
     else:
         raise ValueError(f"unknown multipath model {model!r}; allowed: ['none', 'linear', 'phasor']")
@@ -86,14 +96,16 @@ def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_v
     if measurement_function is direct_measurement:
         return direct_receiver_jacobian(position, velocity, mobile, mobile_velocity)
     position, velocity = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
-    batch = np.broadcast_shapes(position.shape[:-1], velocity.shape[:-1], np.shape(mobile)[:-1], np.shape(mobile_velocity)[:-1])
+    batch = np.broadcast_shapes(position.shape[:-1], velocity.shape[:-1], np.shape(mobile)[:-1],
+                                np.shape(mobile_velocity)[:-1])
     # Rows 0-5 move p_m by +-step along each axis, row 6 is the point itself, rows 7-9 add 1 m/s to v_m.
     offsets, rate_offsets = np.zeros((10, 3)), np.zeros((10, 3))
     offsets[0:3], offsets[3:6], rate_offsets[7:10] = RECEIVER_STEP * np.eye(3), -RECEIVER_STEP * np.eye(3), np.eye(3)
     expand = (slice(None),) * len(batch) + (None,)
     z = measurement_function(
         np.broadcast_to(position, batch + (3,))[expand], np.broadcast_to(velocity, batch + (3,))[expand],
-        np.broadcast_to(mobile, batch + (3,))[expand] + offsets, np.broadcast_to(mobile_velocity, batch + (3,))[expand] + rate_offsets, fixed,
+        np.broadcast_to(mobile, batch + (3,))[expand] + offsets,
+        np.broadcast_to(mobile_velocity, batch + (3,))[expand] + rate_offsets, fixed,
     )  # (..., 10, 2)
     jacobian = np.empty(batch + (2, 6))
     jacobian[..., :3] = np.swapaxes(z[..., 0:3, :] - z[..., 3:6, :], -1, -2) / (2 * RECEIVER_STEP)
@@ -122,13 +134,15 @@ def multipath_spread(propagation: Propagation, sources, receivers, fixed, source
     def inside(box) -> np.ndarray:
         radius = box.radius * np.sqrt(rng.uniform(size=samples))
         angle = rng.uniform(0, 2 * np.pi, samples)
-        return np.stack([radius * np.cos(angle), radius * np.sin(angle), rng.uniform(box.z_min, box.z_max, samples)], -1)
+        depth = rng.uniform(box.z_min, box.z_max, samples)
+        return np.stack([radius * np.cos(angle), radius * np.sin(angle), depth], -1)
 
     def velocities(speed: float) -> np.ndarray:
         direction = rng.normal(size=(samples, 3))
         return speed * rng.uniform(size=(samples, 1)) * direction / np.linalg.norm(direction, axis=1, keepdims=True)
 
-    arguments = (inside(sources), velocities(source_speed), inside(receivers), velocities(receiver_speed), np.asarray(fixed, dtype=float))
+    arguments = (inside(sources), velocities(source_speed), inside(receivers), velocities(receiver_speed),
+                 np.asarray(fixed, dtype=float))
     correction = multipath_measurement("phasor", propagation, *arguments) - direct_measurement(*arguments)
     period = 2 * np.pi / propagation.wavenumber
     phase = np.angle(np.mean(np.exp(2j * np.pi * correction[:, 0] / period)))
@@ -146,13 +160,15 @@ def navigation_covariance(config: EnvConfig) -> np.ndarray:
 
 
 def signal_noise_sd(config: EnvConfig, snr_mobile, snr_fixed) -> np.ndarray:
-    """sd of [RD, RRD] (m, m/s), shape (..., 2), the filter is told for a frame at these in-band SNRs (linear): the
-    Cramer-Rao sd of :func:`~aasl_gym.frontend.tone_measurement_sd` at the carrier's wavelength over the
-    receiver band, times ``signal.sd_inflation``, floored at ``signal.min_*_sd`` (see :class:`SignalSensor`)."""
+    """sd of [RD, RRD] (m, m/s), shape (..., 2), the filter is told for a frame at these in-band SNRs
+    (linear): the Cramer-Rao sd of :func:`~aasl_gym.frontend.tone_measurement_sd` at the carrier's
+    wavelength over the receiver band, times ``signal.sd_inflation``, floored at ``signal.min_*_sd``
+    (see :class:`~aasl_gym.sensors.SignalSensor`)."""
     source, sig = config.source, config.signal
     band = receiver_band(source.waveform, source.frequency)
     wavelength = config.world.sound_speed / carrier_frequency(source.waveform, source.frequency)
-    sd = np.stack(tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], sig.frame_duration), axis=-1)
+    sd = np.stack(tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], sig.frame_duration),
+                  axis=-1)
     return np.maximum(sig.sd_inflation * sd, [sig.min_range_difference_sd, sig.min_range_rate_difference_sd])
 
 
@@ -170,93 +186,12 @@ def expected_noise_covariance(config: EnvConfig, source_position: np.ndarray, mo
     where no frame has been measured yet."""
     fixed = np.asarray(config.world.fixed_position, dtype=float)
     if config.measurement.mode == "signal":
-        sd = signal_noise_sd(config, model_snr(config, source_position, mobile), model_snr(config, source_position, fixed))
+        sd = signal_noise_sd(config, model_snr(config, source_position, mobile),
+                             model_snr(config, source_position, fixed))
     else:
         shape = np.broadcast_shapes(np.shape(source_position), np.shape(mobile))[:-1]
-        sd = np.broadcast_to([config.measurement.range_difference_sd, config.measurement.range_rate_difference_sd], shape + (2,))
+        measurement = config.measurement
+        sd = np.broadcast_to([measurement.range_difference_sd, measurement.range_rate_difference_sd], shape + (2,))
     covariance = np.zeros(sd.shape + (2,))
     covariance[..., 0, 0], covariance[..., 1, 1] = sd[..., 0] ** 2, sd[..., 1] ** 2
     return covariance + navigation_covariance(config)
-
-
-class GeometricSensor:
-    """z = h(true state) + Gaussian noise, with the tone's whole-period ambiguity (SPEC section 3).
-
-    With reflections on, the true [RD, RRD] is the phasor model's (what a tone front end measures).
-    A frame the ``fault`` drops is NaN (its noise is still drawn, so later frames match a run without it).
-    """
-
-    def __init__(self, sd: np.ndarray, propagation: Propagation, reflections: bool, period: float | None,
-                 fault: FaultConfig | None = None):
-        self.sd = np.asarray(sd, dtype=float)
-        self.propagation = propagation
-        self.reflections = reflections
-        self.unwrapper = Unwrapper(period)
-        self.fault = fault or FaultConfig()
-
-    def reset(self, rng: np.random.Generator | None = None) -> None:
-        self.unwrapper.reset()
-
-    def measure(self, rng: np.random.Generator, time: float, position, velocity, mobile, mobile_velocity, fixed,
-                range_rate_bias: float = 0.0) -> np.ndarray:
-        """z at ``time`` (s; the geometry is taken as given) from the true source and receiver states."""
-        model = "phasor" if self.reflections else "none"
-        truth = multipath_measurement(model, self.propagation, position, velocity, mobile, mobile_velocity, fixed)
-        noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
-        if self.fault.active(time):
-            return np.full(2, np.nan)
-        return np.array([self.unwrapper(noisy[0]), noisy[1] + range_rate_bias])
-
-
-class SignalSensor:
-    """z from the acoustic front end (SPEC section 3, :mod:`aasl_gym.synthesis`, :mod:`aasl_gym.frontend`): one synthesized frame per
-    step, centred on the step's time, its RD unwrapped like the geometric sensor's.
-
-    It also says how noisy that z is: ``covariance`` is the Cramer-Rao covariance of a tone frame at the
-    two channels' *measured* SNRs (:func:`~aasl_gym.frontend.tone_measurement_sd`), times
-    ``signal.sd_inflation`` in sd, floored at ``signal.min_*_sd``; the env gives it to the filter as
-    this step's R (plus the navigation term). A sweep or hop gets the same formula at its carrier's
-    wavelength over its whole band: its delay also comes from the correlation phase, and its measured
-    spread is 1.0-1.3x that sd (``tests/test_frontend.py``), within the inflation. The tone's spread is
-    0.8-1.3x its bound. ``range_rate_bias`` (a clock-rate offset) is added to RRD.
-
-    A frame is no measurement (z is NaN) when the ``fault`` option drops it, when the detector does not
-    hear the source in it (:meth:`~aasl_gym.frontend.FrontEnd.heard`: a channel clipped, or one whose
-    narrowband detection statistic is below ``signal.detection_snr_db``, e.g. a silent hydrophone).
-    A dropped frame is still synthesized, so that later frames see the same noise as without the fault.
-    """
-
-    def __init__(self, config: EnvConfig, period: float | None):
-        world, source, sig = config.world, config.source, config.signal
-        self.config = config
-        self.front_end = FrontEnd(
-            waveform_kind=source.waveform, frequency=source.frequency, path=sig.path, frame=sig.frame_duration,
-            guard=sig.guard, sample_rate=sig.sample_rate, envelope_rate=sig.envelope_rate, windows=sig.windows,
-            sound_speed=world.sound_speed, source_level_db=source.source_level_db, noise_level_db=world.noise_level_db,
-            reflections=world.reflections, water_depth=world.water_depth, surface_reflection=world.surface_reflection,
-            bed_reflection=world.bed_reflection, max_delay=2.5 * world.region_radius / world.sound_speed,
-            detection_snr_db=sig.detection_snr_db,
-        )
-        self.unwrapper = Unwrapper(period)
-        self.snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
-        self.covariance = np.diag([sig.min_range_difference_sd**2, sig.min_range_rate_difference_sd**2])
-        self.fault = config.fault
-
-    def reset(self, rng: np.random.Generator | None = None) -> None:
-        self.unwrapper.reset()
-        self.front_end.waveform = None
-        if rng is not None:
-            self.front_end.reset(rng)
-
-    def measure(self, rng: np.random.Generator, time: float, position, velocity, mobile, mobile_velocity, fixed,
-                range_rate_bias: float = 0.0) -> np.ndarray:
-        fault = self.fault if self.fault.active(time) else None
-        corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level) if fault and fault.kind != "dropped" else None
-        result, self.snr, heard = self.front_end.measure(rng, time, position, velocity, mobile, mobile_velocity, fixed, corrupt)
-        self.covariance = np.diag(signal_noise_sd(self.config, self.snr[0], self.snr[1]) ** 2)
-        if fault and fault.kind == "dropped":
-            self.snr = np.full(2, np.nan)
-            return np.full(2, np.nan)
-        if not heard:
-            return np.full(2, np.nan)
-        return np.array([self.unwrapper(result.range_difference), result.range_rate_difference + range_rate_bias])

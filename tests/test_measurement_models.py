@@ -10,7 +10,7 @@ from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
 from aasl_gym.estimator import SourceTracker
 from aasl_gym.filters import merwe_sigma_points, merwe_weights
-from aasl_gym.measurements import (
+from aasl_gym.measurement_models import (
     Propagation,
     direct_measurement,
     multipath_measurement,
@@ -128,29 +128,3 @@ def test_the_multipath_spread_vanishes_without_reflections_and_is_bounded_with_t
     np.testing.assert_allclose(multipath_spread(silent, sources, receivers, FIXED, 1.5, 1.5), 0.0, atol=1e-20)
     spread = multipath_spread(Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5), sources, receivers, FIXED, 1.5, 1.5)
     assert 0.01 < np.sqrt(spread[0, 0]) <= 1.5 / np.sqrt(12) and spread[1, 1] > 0.01
-
-
-@pytest.mark.parametrize("mode,kind", [("geometric", "dropped"), ("signal", "dropped"), ("signal", "silent"), ("signal", "clipped")])
-def test_a_faulty_burst_is_lost_and_later_frames_are_untouched(mode, kind):
-    """The fault option: every frame from 1 s for 1 s is lost (NaN: dropped, or rejected by the front
-    end's detector), none other is, and the frames after the burst are those of a run without the fault
-    to the last bit (the burst draws the same noise)."""
-    from aasl_gym.measurements import GeometricSensor, SignalSensor
-
-    runs = []
-    for fault in ("none", kind):
-        config = EnvConfig().replace(measurement={"mode": mode}, fault={"kind": fault, "start": 1.0, "duration": 1.0})
-        if mode == "signal":
-            sensor = SignalSensor(config, config.wavelength)
-        else:
-            sensor = GeometricSensor([0.05, 0.02], Propagation.from_config(config.world, 1000.0), True, config.wavelength, config.fault)
-        rng = np.random.default_rng(7)
-        sensor.reset(rng)
-        times = 0.2 * np.arange(1, 16)
-        runs.append(np.array([sensor.measure(rng, t, np.array([8.0, -6, -12]), np.array([0.3, 0, 0]), np.array([14.0, 4, -8]),
-                                             np.zeros(3), FIXED) for t in times]))
-    clean, faulty = runs
-    lost = np.isnan(faulty[:, 0])
-    np.testing.assert_array_equal(lost, (times >= 1.0 - 1e-9) & (times < 2.0 - 1e-9))
-    assert not np.isnan(clean).any()
-    np.testing.assert_array_equal(faulty[~lost], clean[~lost])

@@ -1,0 +1,162 @@
+"""The two measurement modes (SPEC section 3) behind one interface, :class:`Sensor`: each step the env
+asks the sensor for ``z = [RD, RRD]`` (m, m/s) from the true geometry, then for the acoustic noise
+covariance the filter is told for that frame and the frame's SNRs.
+
+For a tone the RD is known only modulo one wavelength: the first value is wrapped to
+[-lambda/2, lambda/2) and every later one is unwrapped to the whole number of wavelengths nearest the
+previous unwrapped value (:class:`~aasl_gym.frontend.Unwrapper`), so the track carries a whole-period
+offset fixed at the episode's start; the estimator holds it in its range-difference bias ``b_p``.
+A lost frame (dropped by the ``fault`` option, or in signal mode one the detector does not hear) is NaN.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from aasl_gym.config import EnvConfig
+from aasl_gym.frontend import FrontEnd, Unwrapper
+from aasl_gym.measurement_models import Propagation, model_snr, multipath_measurement, signal_noise_sd
+from aasl_gym.synthesis import FrameFault
+
+
+@runtime_checkable
+class Sensor(Protocol):
+    """One measurement mode as the env drives it: :meth:`reset` at an episode's start, :meth:`measure`
+    once a step; :meth:`covariance` and :meth:`snr` then describe the frame just measured."""
+
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        """A new episode: the unwrapping starts over (and whatever the sensor draws per episode is drawn)."""
+
+    def measure(self, rng: np.random.Generator, time: float, source_position, source_velocity, mobile, mobile_velocity,
+                fixed, range_rate_bias: float = 0.0) -> np.ndarray:
+        """z (m, m/s) of the frame at ``time`` (s) from the true source and receiver states (m, m/s), with
+        ``range_rate_bias`` (m/s, a clock-rate offset) added to RRD; NaN for a lost frame."""
+
+    def covariance(self) -> np.ndarray:
+        """R_ac (2x2; m^2, m^2/s^2): the acoustic noise covariance the filter is told for the latest frame
+        (the navigation term of R_eff is added by whoever uses it)."""
+
+    def snr(self) -> np.ndarray:
+        """In-band SNR (linear) of the latest frame at the (mobile, fixed) hydrophones; NaN where unknown."""
+
+
+def tone_period(config: EnvConfig) -> float | None:
+    """m, the period a tone's RD is known modulo (one wavelength); None for a sweep or hop (unambiguous)."""
+    return config.wavelength if config.source.waveform == "tone" else None
+
+
+class GeometricSensor:
+    """z = h(true state) + Gaussian noise of sd ``measurement.range_difference_sd`` and
+    ``range_rate_difference_sd``, with the tone's whole-period ambiguity (SPEC section 3).
+
+    With reflections on, the true [RD, RRD] is the phasor model's (what a tone front end measures). Its
+    R is that fixed noise; its SNRs are the SNR model's (:func:`~aasl_gym.measurement_models.model_snr`)
+    at the frame's true geometry. A frame the ``fault`` drops is NaN (its noise is still drawn, so later
+    frames match a run without it).
+    """
+
+    def __init__(self, config: EnvConfig, period: float | None):
+        measurement = config.measurement
+        self.config = config
+        self.sd = np.array([measurement.range_difference_sd, measurement.range_rate_difference_sd])
+        self.propagation = Propagation.from_config(config.world, config.source.frequency)
+        self.reflections = config.world.reflections
+        self.unwrapper = Unwrapper(period)
+        self.fault = config.fault
+        self._covariance = np.diag(self.sd**2)
+        self._snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
+
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        self.unwrapper.reset()
+
+    def measure(self, rng: np.random.Generator, time: float, source_position, source_velocity, mobile, mobile_velocity,
+                fixed, range_rate_bias: float = 0.0) -> np.ndarray:
+        """z at ``time`` (s; the geometry is taken as given) from the true source and receiver states."""
+        model = "phasor" if self.reflections else "none"
+        truth = multipath_measurement(model, self.propagation, source_position, source_velocity, mobile,
+                                      mobile_velocity, fixed)
+        noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
+        self._snr = model_snr(self.config, source_position, np.array([mobile, fixed]))
+        if self.fault.active(time):
+            return np.full(2, np.nan)
+        return np.array([self.unwrapper(noisy[0]), noisy[1] + range_rate_bias])
+
+    def covariance(self) -> np.ndarray:
+        return self._covariance
+
+    def snr(self) -> np.ndarray:
+        return self._snr
+
+
+class SignalSensor:
+    """z from the acoustic front end (SPEC section 3, :mod:`aasl_gym.synthesis` and
+    :mod:`aasl_gym.frontend`): one synthesized frame per step, centred on the step's time, its RD
+    unwrapped like the geometric sensor's.
+
+    It also says how noisy that z is: :meth:`covariance` is the Cramer-Rao covariance of a tone frame at
+    the two channels' *measured* SNRs (:func:`~aasl_gym.frontend.tone_measurement_sd`), times
+    ``signal.sd_inflation`` in sd, floored at ``signal.min_*_sd``; the env gives it to the filter as
+    this step's R (plus the navigation term). A sweep or hop gets the same formula at its carrier's
+    wavelength over its whole band: its delay also comes from the correlation phase, and its measured
+    spread is 1.0-1.3x that sd (``tests/test_frontend.py``), within the inflation. The tone's spread is
+    0.8-1.3x its bound. ``range_rate_bias`` (a clock-rate offset) is added to RRD.
+
+    A frame is no measurement (z is NaN) when the ``fault`` option drops it (its SNRs are then NaN too),
+    or when the detector does not hear the source in it (:meth:`~aasl_gym.frontend.FrontEnd.heard`: a
+    channel clipped, or one whose narrowband detection statistic is below ``signal.detection_snr_db``,
+    e.g. a silent hydrophone). A dropped frame is still synthesized, so that later frames see the same
+    noise as without the fault.
+    """
+
+    def __init__(self, config: EnvConfig, period: float | None):
+        world, source, sig = config.world, config.source, config.signal
+        self.config = config
+        self.front_end = FrontEnd(
+            waveform_kind=source.waveform, frequency=source.frequency, path=sig.path, frame=sig.frame_duration,
+            guard=sig.guard, sample_rate=sig.sample_rate, envelope_rate=sig.envelope_rate, windows=sig.windows,
+            sound_speed=world.sound_speed, source_level_db=source.source_level_db,
+            noise_level_db=world.noise_level_db, reflections=world.reflections, water_depth=world.water_depth,
+            surface_reflection=world.surface_reflection, bed_reflection=world.bed_reflection,
+            max_delay=2.5 * world.region_radius / world.sound_speed, detection_snr_db=sig.detection_snr_db,
+        )
+        self.unwrapper = Unwrapper(period)
+        self.fault = config.fault
+        self._snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
+        self._covariance = np.diag([sig.min_range_difference_sd**2, sig.min_range_rate_difference_sd**2])
+
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        """A new episode; with ``rng``, a fresh random waveform phase (else drawn at the first frame)."""
+        self.unwrapper.reset()
+        self.front_end.waveform = None
+        if rng is not None:
+            self.front_end.reset(rng)
+
+    def measure(self, rng: np.random.Generator, time: float, source_position, source_velocity, mobile, mobile_velocity,
+                fixed, range_rate_bias: float = 0.0) -> np.ndarray:
+        fault = self.fault if self.fault.active(time) else None
+        corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level) if fault and fault.kind != "dropped" else None
+        result, self._snr, heard = self.front_end.measure(rng, time, source_position, source_velocity, mobile,
+                                                          mobile_velocity, fixed, corrupt)
+        self._covariance = np.diag(signal_noise_sd(self.config, self._snr[0], self._snr[1]) ** 2)
+        if fault and fault.kind == "dropped":
+            self._snr = np.full(2, np.nan)
+            return np.full(2, np.nan)
+        if not heard:
+            return np.full(2, np.nan)
+        return np.array([self.unwrapper(result.range_difference), result.range_rate_difference + range_rate_bias])
+
+    def covariance(self) -> np.ndarray:
+        return self._covariance
+
+    def snr(self) -> np.ndarray:
+        return self._snr
+
+
+SENSORS: dict[str, type] = {"geometric": GeometricSensor, "signal": SignalSensor}  # by ``measurement.mode``
+
+
+def make_sensor(config: EnvConfig) -> Sensor:
+    """The sensor of ``config.measurement.mode``, unwrapping a tone's RD by its wavelength."""
+    return SENSORS[config.measurement.mode](config, tone_period(config))
