@@ -17,6 +17,7 @@ from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.measurement_models import direct_measurement, navigation_covariance
 from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
+from aasl_gym.observation import OBSERVATION_BOUND, OBSERVATION_SIZE, Observation, encode_observation
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 from aasl_gym.planning import GreedyPlanner
 from aasl_gym.sensors import make_sensor
@@ -31,27 +32,7 @@ OVERRIDES: dict[str, tuple[str, str]] = {
     "filter_model": ("filter", "motion_model"),
 }
 
-# Observation layout: (name, length, what it holds). Scales are applied as documented in AASLEnv.
-OBSERVATION_LAYOUT = (
-    ("relative_estimate", 3, "estimated source position minus reported receiver position, / region_radius"),
-    ("estimate_velocity", 3, "estimated source velocity, / source.max_speed"),
-    ("receiver_position", 3, "reported receiver position, / region_radius"),
-    ("receiver_velocity", 3, "reported receiver velocity, / receiver.max_speed"),
-    ("log_variance", 3, "natural log of the estimate's position variances (m^2), / 10"),
-    ("measurement", 2, "latest [RD / region_radius, RRD / source.max_speed]"),
-    ("innovation", 2, "latest innovation divided by its predicted sd, / 10"),
-    ("time", 1, "elapsed time / episode duration"),
-    ("initialized", 1, "1 once the filter runs, else 0"),
-)
 ENV_PATROLS = (*PATROLS, "greedy")  # what an env's action may be a residual on (``patrol``)
-
-OBSERVATION_SLICES: dict[str, slice] = {}
-_start = 0
-for _name, _length, _ in OBSERVATION_LAYOUT:
-    OBSERVATION_SLICES[_name] = slice(_start, _start + _length)
-    _start += _length
-OBSERVATION_SIZE = _start
-OBSERVATION_BOUND = 10.0
 
 
 def resolve_config(config: EnvConfig | Mapping[str, Any] | str | Path | None, **overrides: Any) -> EnvConfig:
@@ -210,7 +191,7 @@ class AASLEnv(gym.Env):
         self.source_region = source_region(cfg.world, cfg.source)
         self.motion_region = motion_region(cfg.world, cfg.source)
         self.receiver_region = receiver_region(cfg.world, cfg.receiver)
-        self.patrol_geometry = PatrolGeometry(self.fixed, np.asarray(cfg.receiver.start_position, dtype=float))
+        self.patrol_geometry = PatrolGeometry.from_config(cfg)
         measurement_sd = np.array([cfg.measurement.range_difference_sd, cfg.measurement.range_rate_difference_sd])
         self.acoustic_covariance = np.diag(measurement_sd**2)
         # The navigation term of R_eff (zero without compensation); geometric mode's R is fixed, signal mode's per frame.
@@ -248,7 +229,8 @@ class AASLEnv(gym.Env):
         self._fim_logdet = self.information.logdet
         self._error = math.nan
         self._succeeded = False
-        self._latest = np.zeros(4)  # measurement (2) and normalized innovation (2)
+        self._last_measurement = np.zeros(2)  # [RD, RRD] the observation shows (it keeps it over lost frames)
+        self._last_innovation = np.zeros(2)  # over its predicted sd
         self._times: list[float] = []
         self._errors: list[float] = []
         self.trajectory: dict[str, list[np.ndarray]] = {"receiver": [self.receiver_position.copy()], "source": [self.source.position.copy()], "estimate": []}
@@ -306,8 +288,8 @@ class AASLEnv(gym.Env):
         estimate_error = float(np.linalg.norm(estimate - self.source.position))
         error = estimate_error if out.initialized else math.nan
         if measured:  # the observation holds the last measurement over lost frames
-            self._latest[:2] = z
-        self._latest[2:] = out.innovation / out.innovation_sd if np.all(np.isfinite(out.innovation)) else 0.0
+            self._last_measurement[:] = z
+        self._last_innovation[:] = out.innovation / out.innovation_sd if np.all(np.isfinite(out.innovation)) else 0.0
 
         # 4. reward
         first_success = not self._succeeded and error < cfg.reward.success_threshold
@@ -371,23 +353,15 @@ class AASLEnv(gym.Env):
         }
 
     def _observation(self) -> np.ndarray:
-        cfg = self.config
-        scale = cfg.world.region_radius
-        obs = np.zeros(OBSERVATION_SIZE)
-        s = OBSERVATION_SLICES
-        if self.tracker.initialized:
-            obs[s["relative_estimate"]] = (self.tracker.position - self.reported_position) / scale
-            obs[s["estimate_velocity"]] = self.tracker.velocity / cfg.source.max_speed
-            variances = np.maximum(np.diag(self.tracker.ukf.P)[:3], 1e-12)
-            obs[s["log_variance"]] = np.log(variances) / 10.0
-            obs[s["initialized"]] = 1.0
-        obs[s["receiver_position"]] = self.reported_position / scale
-        obs[s["receiver_velocity"]] = self.reported_velocity / cfg.receiver.max_speed
-        obs[s["measurement"]] = self._latest[:2] / np.array([scale, cfg.source.max_speed])
-        obs[s["innovation"]] = self._latest[2:] / 10.0
-        obs[s["time"]] = self._time / cfg.episode.duration
-        np.clip(obs, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=obs)
-        return obs.astype(np.float32)
+        """The observation vector: what the robot knows (:mod:`aasl_gym.observation`)."""
+        tracker = self.tracker
+        estimate = {}
+        if tracker.initialized:
+            estimate = {"estimate_position": tracker.position, "estimate_velocity": tracker.velocity,
+                        "position_variance": np.diag(tracker.ukf.P)[:3]}
+        known = Observation(self._time, self.reported_position, self.reported_velocity, self._last_measurement,
+                            self._last_innovation, tracker.initialized, **estimate)
+        return encode_observation(known, self.config)
 
     # -- rendering -----------------------------------------------------------------------------
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aasl_gym.config import PatrolConfig
+from aasl_gym.config import EnvConfig, PatrolConfig
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,12 @@ class PatrolGeometry:
 
     centre: np.ndarray  # (3,) m
     start: np.ndarray  # (3,) m
+
+    @classmethod
+    def from_config(cls, config: EnvConfig) -> "PatrolGeometry":
+        """Centred on the fixed hydrophone, from where the robot starts."""
+        return cls(np.asarray(config.world.fixed_position, dtype=float),
+                   np.asarray(config.receiver.start_position, dtype=float))
 
     @property
     def start_angle(self) -> float:

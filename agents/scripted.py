@@ -1,8 +1,8 @@
 """Scripted policies for ``AASL-v0``: the patrol patterns, a random policy and the zero action.
 
 A patrol policy reads the robot's reported position and the elapsed time from the observation (see
-``aasl_gym.env.OBSERVATION_LAYOUT``) and returns the pattern's velocity command as an action, so it
-flies exactly what ``AASL-<Pattern>-v0`` flies with a zero action.
+:mod:`aasl_gym.observation`) and returns the pattern's velocity command as an action, so it flies
+exactly what ``AASL-<Pattern>-v0`` flies with a zero action.
 """
 
 from __future__ import annotations
@@ -10,24 +10,23 @@ from __future__ import annotations
 import numpy as np
 
 from aasl_gym.config import PATROLS, EnvConfig
-from aasl_gym.env import OBSERVATION_SLICES
+from aasl_gym.observation import decode_observation
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 
 
 class PatrolPolicy:
+    """Flies the patrol ``pattern`` (one of :data:`~aasl_gym.config.PATROLS`) from the observation alone."""
+
     def __init__(self, pattern: str, config: EnvConfig):
         if pattern not in PATROLS:
             raise ValueError(f"unknown patrol pattern {pattern!r}; allowed: {list(PATROLS)}")
         self.pattern = pattern
         self.config = config
-        fixed = np.asarray(config.world.fixed_position, dtype=float)
-        self.geometry = PatrolGeometry(fixed, np.asarray(config.receiver.start_position, dtype=float))
+        self.geometry = PatrolGeometry.from_config(config)
 
     def _action(self, obs: np.ndarray) -> np.ndarray:
-        obs = np.asarray(obs, dtype=float)
-        time = obs[OBSERVATION_SLICES["time"]][0] * self.config.episode.duration
-        position = obs[OBSERVATION_SLICES["receiver_position"]] * self.config.world.region_radius
-        command = patrol_command(self.pattern, time, position, self.config.patrol, self.geometry)
+        seen = decode_observation(obs, self.config)
+        command = patrol_command(self.pattern, seen.time, seen.receiver_position, self.config.patrol, self.geometry)
         return command / self.config.receiver.max_speed
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
@@ -53,21 +52,3 @@ class ZeroPolicy:
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         return np.zeros(np.shape(observation)[:-1] + (3,), dtype=np.float32), state
-
-
-POLICIES = (*PATROLS, "greedy", "random", "zero")
-
-
-def make_policy(name: str, config: EnvConfig, seed: int | None = None):
-    """The policy called ``name`` (one of :data:`POLICIES`) for envs built from ``config``."""
-    if name in PATROLS:
-        return PatrolPolicy(name, config)
-    if name == "greedy":
-        from agents.greedy import GreedyInformationPolicy  # imports the env's information machinery
-
-        return GreedyInformationPolicy(config)
-    if name == "random":
-        return RandomPolicy(seed)
-    if name == "zero":
-        return ZeroPolicy()
-    raise ValueError(f"unknown policy {name!r}; allowed: {list(POLICIES)} or ALGO:PATH")

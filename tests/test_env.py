@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import aasl_gym
-from aasl_gym.env import OBSERVATION_SIZE
+from aasl_gym.observation import OBSERVATION_SIZE
 from aasl_gym.fisher import information_prior
 from aasl_gym.measurement_models import model_snr
 from agents import PatrolPolicy
