@@ -12,11 +12,13 @@ from gymnasium import spaces
 
 from aasl_gym import metrics, rewards
 from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_config, to_dict
-from aasl_gym.estimator import SourceTracker
+from aasl_gym.estimator import SourceTracker, TrackerOutput
 from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.measurement_models import direct_measurement, navigation_covariance
-from aasl_gym.motion import NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region
+from aasl_gym.motion import (
+    NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region,
+)
 from aasl_gym.observation import OBSERVATION_BOUND, OBSERVATION_SIZE, Observation, encode_observation
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 from aasl_gym.planning import GreedyPlanner
@@ -50,7 +52,8 @@ def resolve_config(config: EnvConfig | Mapping[str, Any] | str | Path | None, **
     elif isinstance(config, (str, Path)):
         base = load_config(config)
     else:
-        raise ConfigError(f"config: expected a path to a YAML file, a mapping or an EnvConfig, got {type(config).__name__}")
+        raise ConfigError("config: expected a path to a YAML file, a mapping or an EnvConfig, "
+                          f"got {type(config).__name__}")
     unknown = sorted(set(overrides) - set(OVERRIDES))
     if unknown:
         raise ConfigError(f"{unknown[0]}: unknown override; allowed: {sorted(OVERRIDES)} and config")
@@ -82,10 +85,10 @@ class AASLEnv(gym.Env):
     UKFs, one per likely whole-period sheet, and re-runs on its growing window (fitting the filter's
     motion model) for the first 60 s, and again on the recent window whenever the likeliest filter
     stops explaining the data; the reported estimate is the likeliest filter's (``aasl_gym.estimator``).
-    ``measurement.mode`` chooses how [RD, RRD] is made: ``signal``, the default (the acoustic front end
-    of ``aasl_gym.acoustics`` synthesizes and processes both channels for a 0.2 s frame each step, and
-    the filter's R follows each frame's measured SNR), or ``geometric`` (the geometry plus Gaussian
-    noise, as in the reference paper's study).
+    ``measurement.mode`` chooses how [RD, RRD] is made (``aasl_gym.sensors``): ``signal``, the default
+    (``aasl_gym.synthesis`` synthesizes both channels for a 0.2 s frame each step, the front end of
+    ``aasl_gym.frontend`` processes them, and the filter's R follows each frame's measured SNR), or
+    ``geometric`` (the geometry plus Gaussian noise, as in the reference paper's study).
 
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: a velocity command scaled by ``receiver.max_speed`` (1.5 m/s). In
@@ -93,15 +96,16 @@ class AASLEnv(gym.Env):
     ``-Circle-``, ``-Lawnmower-``) it is a residual added to the pattern's command, so a zero action
     flies the pure scripted patrol; in ``AASL-Greedy-v0`` it is a residual on the information-greedy
     planner's command (``aasl_gym.planning``, from the estimate; the helix until the filter starts), so
-    a zero action flies what the ``greedy`` policy flies. The command's norm is clipped to the speed limit; a surface vessel
-    ignores z. Finite actions outside the box are clipped to it; NaN or infinite actions raise
+    a zero action flies what the ``greedy`` policy flies. The command's norm is clipped to the speed
+    limit; a surface vessel ignores z. Finite actions outside the box are clipped to it; NaN or infinite actions raise
     ``ValueError``. The robot never leaves the water column (``receiver.min_depth``,
     ``bed_clearance``), its region (``receiver.region_radius``) or enters the keep-out sphere
     (``receiver.keep_out_radius`` about the fixed hydrophone): a command that would is projected and
     penalized.
 
     ## Observation Space
-    ``Box(-10, 10, (21,), float32)``, built only from what the robot knows (no ground truth):
+    ``Box(-10, 10, (21,), float32)``, built only from what the robot knows (no ground truth); its
+    layout, encoder and decoder are ``aasl_gym.observation``'s:
 
     | index | meaning | scale |
     |-------|---------|-------|
@@ -179,7 +183,8 @@ class AASLEnv(gym.Env):
         if patrol is not None and patrol not in ENV_PATROLS:
             raise ConfigError(f"patrol={patrol!r}: allowed values are {list(ENV_PATROLS)} or None")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ConfigError(f"render_mode={render_mode!r}: allowed values are {self.metadata['render_modes']} or None")
+            allowed = self.metadata["render_modes"]
+            raise ConfigError(f"render_mode={render_mode!r}: allowed values are {allowed} or None")
         self.patrol = patrol
         self.render_mode = render_mode
         cfg = self.config
@@ -194,12 +199,13 @@ class AASLEnv(gym.Env):
         self.patrol_geometry = PatrolGeometry.from_config(cfg)
         measurement_sd = np.array([cfg.measurement.range_difference_sd, cfg.measurement.range_rate_difference_sd])
         self.acoustic_covariance = np.diag(measurement_sd**2)
-        # The navigation term of R_eff (zero without compensation); geometric mode's R is fixed, signal mode's per frame.
+        # The navigation term of R_eff (zero without compensation); the acoustic R is the sensor's, per frame.
         self.navigation_covariance = navigation_covariance(cfg)
         self.filter_covariance = self.acoustic_covariance + self.navigation_covariance
         self.sensor = make_sensor(cfg)
         self.tracker = SourceTracker(cfg, self.source_region, self.acoustic_covariance)
-        self.navigation = NavigationError(cfg.receiver.nav_position_sd, cfg.receiver.velocity_sd, cfg.receiver.nav_drift_sd)
+        receiver = cfg.receiver
+        self.navigation = NavigationError(receiver.nav_position_sd, receiver.velocity_sd, receiver.nav_drift_sd)
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
         self.surface_depth = cfg.receiver.surface_depth if cfg.receiver.kind == "surface" else None
         self.planner = GreedyPlanner(cfg) if patrol == "greedy" else None
@@ -218,7 +224,8 @@ class AASLEnv(gym.Env):
             self.receiver_position[2] = -self.surface_depth
         self.receiver_velocity = np.zeros(3)
         self.navigation.reset()
-        self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, self.dt)
+        self.reported_position, self.reported_velocity = self.navigation.report(
+            rng, self.receiver_position, self.receiver_velocity, self.dt)
         self.sensor.reset(rng)
         self.tracker.reset()
         self.information.reset(self.tracker.prior_covariance)
@@ -233,7 +240,9 @@ class AASLEnv(gym.Env):
         self._last_innovation = np.zeros(2)  # over its predicted sd
         self._times: list[float] = []
         self._errors: list[float] = []
-        self.trajectory: dict[str, list[np.ndarray]] = {"receiver": [self.receiver_position.copy()], "source": [self.source.position.copy()], "estimate": []}
+        self.trajectory: dict[str, list[np.ndarray]] = {
+            "receiver": [self.receiver_position.copy()], "source": [self.source.position.copy()], "estimate": [],
+        }
         if self.render_mode == "human":
             self.render()
         return self._observation(), {"time": 0.0, "source_motion": self.source.kind}
@@ -243,55 +252,97 @@ class AASLEnv(gym.Env):
         if self.planner is not None and self.tracker.initialized:  # from the estimate: what the robot knows
             return command + self.planner.command(self.tracker.position, self.tracker.velocity, self.reported_position)
         if self.patrol is not None:
-            pattern = "helix" if self.patrol == "greedy" else self.patrol  # the greedy flies the helix until it has an estimate
-            command = command + patrol_command(pattern, self._time, self.reported_position, self.config.patrol, self.patrol_geometry)
+            # The greedy flies the helix until it has an estimate.
+            pattern = "helix" if self.patrol == "greedy" else self.patrol
+            command = command + patrol_command(pattern, self._time, self.reported_position, self.config.patrol,
+                                               self.patrol_geometry)
         return command
 
     def step(self, action):
+        action = self._checked_action(action)
+        hit = self._move(action)
+        z = self._measure()
+        out = self._track(z)
+        fim_logdet = self._gather_information(z)
+        terms = self._reward_terms(action, hit, fim_logdet, out.initialized)
+        converged = self._error < self.config.episode.convergence_threshold
+        terminated = bool(self.config.episode.terminate_on_convergence and converged)
+        truncated = self._steps >= self.max_steps
+        info = self._info(z, out, fim_logdet, terms, converged)
+        if terminated or truncated:
+            info.update(self.episode_summary())
+        self._record_trajectory(out.initialized)
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(), float(sum(terms.values())), terminated, truncated, info
+
+    # -- the stages of a step ------------------------------------------------------------------
+
+    @staticmethod
+    def _checked_action(action) -> np.ndarray:
+        """The action as a (3,) float array, clipped to the box; a wrong shape or a non-finite entry raises."""
         action = np.asarray(action, dtype=float).reshape(-1)
         if action.shape != (3,):
             raise ValueError(f"action must have shape (3,), got {action.shape}")
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action must be finite, got {action.tolist()}")
-        action = np.clip(action, -1.0, 1.0)
-        cfg = self.config
-        rng = self.np_random
-        dt = self.dt
+        return np.clip(action, -1.0, 1.0)
 
-        # 1. the robot moves, the source moves
+    def _move(self, action: np.ndarray) -> bool:
+        """The robot flies its command and the source its motion for one step; whether the robot hit a limit."""
+        receiver = self.config.receiver
         self.receiver_position, self.receiver_velocity, hit = move_receiver(
-            self.receiver_position, self._command(action), dt, cfg.receiver.max_speed, self.receiver_region,
-            self.fixed, cfg.receiver.keep_out_radius, self.surface_depth,
+            self.receiver_position, self._command(action), self.dt, receiver.max_speed, self.receiver_region,
+            self.fixed, receiver.keep_out_radius, self.surface_depth,
         )
-        self.source = advance_source(self.source, dt, self.motion_region)
-        self._time = (self._steps + 1) * dt
+        self.source = advance_source(self.source, self.dt, self.motion_region)
         self._steps += 1
+        self._time = self._steps * self.dt
+        return hit
 
-        # 2. measure, from the true geometry; navigation reports the robot's state with its error
-        z = self.sensor.measure(rng, self._time, self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed, cfg.source.range_rate_bias)
-        # Signal mode: the front end says how noisy this frame is (from its SNRs); geometric: a fixed R_ac.
-        # The tracker adds the navigation term itself, from its model at each hypothesis.
-        acoustic = self.sensor.covariance()
-        noise = acoustic + self.navigation_covariance  # the direct path's R_eff, for the information reward
-        self.reported_position, self.reported_velocity = self.navigation.report(rng, self.receiver_position, self.receiver_velocity, dt)
+    def _measure(self) -> np.ndarray:
+        """The sensor's [RD, RRD] from the true geometry (NaN for a lost frame); then navigation reports the
+        robot's state with its error."""
+        z = self.sensor.measure(self.np_random, self._time, self.source.position, self.source.velocity,
+                                self.receiver_position, self.receiver_velocity, self.fixed,
+                                self.config.source.range_rate_bias)
+        self.reported_position, self.reported_velocity = self.navigation.report(
+            self.np_random, self.receiver_position, self.receiver_velocity, self.dt)
+        return z
 
-        # 3. estimate
-        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, rng, acoustic)
-        estimate = self.tracker.position
-        estimate_velocity = self.tracker.velocity
-        jacobian = measurement_jacobian(estimate, estimate_velocity, self.reported_position, self.reported_velocity, self.fixed)
-        measured = bool(np.all(np.isfinite(z)))  # a lost frame (dropped by config.fault, or rejected by the detector) is NaN
-        fim_logdet = self.information.step(dt, jacobian if measured else None, noise)
+    def _track(self, z: np.ndarray) -> TrackerOutput:
+        """The tracker takes the frame with the acoustic R the sensor gives it (the tracker adds the
+        navigation term itself, from its model at each hypothesis); the planner and the observation follow."""
+        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, self.np_random,
+                                self.sensor.covariance())
         if self.planner is not None:
-            self.planner.observe(out.initialized, estimate, estimate_velocity, self.reported_position, self.reported_velocity)
-        # The metrics and rewards count from the tracker's own estimate; info reports the prior's error before it.
-        estimate_error = float(np.linalg.norm(estimate - self.source.position))
-        error = estimate_error if out.initialized else math.nan
-        if measured:  # the observation holds the last measurement over lost frames
+            self.planner.observe(out.initialized, self.tracker.position, self.tracker.velocity, self.reported_position,
+                                 self.reported_velocity)
+        if np.all(np.isfinite(z)):  # the observation holds the last measurement over lost frames
             self._last_measurement[:] = z
-        self._last_innovation[:] = out.innovation / out.innovation_sd if np.all(np.isfinite(out.innovation)) else 0.0
+        innovation_known = np.all(np.isfinite(out.innovation))
+        self._last_innovation[:] = out.innovation / out.innovation_sd if innovation_known else 0.0
+        return out
 
-        # 4. reward
+    def _gather_information(self, z: np.ndarray) -> float:
+        """log det of the position information at the estimate after this frame, under the direct path's
+        R_eff; a lost frame (dropped by config.fault, or rejected by the detector: NaN) only predicts."""
+        jacobian = measurement_jacobian(self.tracker.position, self.tracker.velocity, self.reported_position,
+                                        self.reported_velocity, self.fixed)
+        measured = bool(np.all(np.isfinite(z)))
+        noise = self.sensor.covariance() + self.navigation_covariance
+        return self.information.step(self.dt, jacobian if measured else None, noise)
+
+    def _position_error(self) -> float:
+        """m, of the reported estimate (the prior's mean before the filter starts)."""
+        return float(np.linalg.norm(self.tracker.position - self.source.position))
+
+    def _reward_terms(self, action: np.ndarray, hit: bool, fim_logdet: float, initialized: bool) -> dict[str, float]:
+        """The step's weighted reward terms; the running information and error, and the episode's error
+        history, move on to this step's."""
+        cfg = self.config
+        # The metrics and rewards count from the tracker's own estimate; info reports the prior's error before it.
+        error = self._position_error() if initialized else math.nan
         first_success = not self._succeeded and error < cfg.reward.success_threshold
         self._succeeded |= first_success
         terms = rewards.weighted_terms(cfg.reward, {
@@ -301,15 +352,15 @@ class AASLEnv(gym.Env):
             "constraint_penalty": rewards.constraint_penalty(hit),
             "success_bonus": rewards.success_bonus(first_success),
         })
-        reward = float(sum(terms.values()))
         self._fim_logdet, self._error = fim_logdet, error
         self._times.append(self._time)
         self._errors.append(error)
+        return terms
 
-        converged = error < cfg.episode.convergence_threshold
-        terminated = bool(cfg.episode.terminate_on_convergence and converged)
-        truncated = self._steps >= self.max_steps
-        info = {
+    def _info(self, z: np.ndarray, out: TrackerOutput, fim_logdet: float, terms: dict[str, float],
+              converged: bool) -> dict[str, Any]:
+        """The step's ``info`` (see the class docstring)."""
+        return {
             "time": self._time,
             "source_position": self.source.position.copy(),
             "source_velocity": self.source.velocity.copy(),
@@ -317,12 +368,13 @@ class AASLEnv(gym.Env):
             "receiver_velocity": self.receiver_velocity.copy(),
             "receiver_position_reported": self.reported_position.copy(),
             "fixed_position": self.fixed.copy(),
-            "estimate_position": estimate,
-            "estimate_velocity": estimate_velocity,
-            "position_error": estimate_error,
+            "estimate_position": self.tracker.position,
+            "estimate_velocity": self.tracker.velocity,
+            "position_error": self._position_error(),
             "position_covariance": self.tracker.position_covariance,
             "measurement": np.asarray(z, dtype=float),
-            "measurement_true": direct_measurement(self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed),
+            "measurement_true": direct_measurement(self.source.position, self.source.velocity, self.receiver_position,
+                                                   self.receiver_velocity, self.fixed),
             "snr_db": float(10 * np.log10(np.min(self.sensor.snr()))),
             "initialized": out.initialized,
             "converged": bool(converged),
@@ -330,21 +382,22 @@ class AASLEnv(gym.Env):
             "fim_logdet": fim_logdet,
             "reward_terms": terms,
         }
-        if terminated or truncated:
-            info.update(self.episode_summary())
+
+    def _record_trajectory(self, initialized: bool) -> None:
+        """The robot's, the source's and (once there is one) the estimate's paths, for rendering."""
         self.trajectory["receiver"].append(self.receiver_position.copy())
         self.trajectory["source"].append(self.source.position.copy())
-        if out.initialized:
-            self.trajectory["estimate"].append(estimate)
-        if self.render_mode == "human":
-            self.render()
-        return self._observation(), reward, terminated, truncated, info
+        if initialized:
+            self.trajectory["estimate"].append(self.tracker.position)
+
+    # -- episode metrics and observation -------------------------------------------------------
 
     def episode_summary(self) -> dict[str, Any]:
         """The episode's metrics so far (added to ``info`` on the last step)."""
         times, errors = np.asarray(self._times), np.asarray(self._errors)
         return {
-            "convergence_time": np.array(metrics.convergence_time(times, errors, self.config.episode.convergence_threshold)),
+            "convergence_time": np.array(
+                metrics.convergence_time(times, errors, self.config.episode.convergence_threshold)),
             "rmse": np.array(metrics.rmse(errors)),
             "final_error": np.array(errors[-1] if errors.size else math.nan),
             "success": metrics.success(times, errors),
