@@ -19,12 +19,14 @@ from scipy import integrate, signal
 def _butterworth(band: tuple[float, float], order: int) -> tuple[np.ndarray, np.ndarray]:
     return signal.butter(order, 2 * np.pi * np.asarray(band), btype="bandpass", analog=True)
 
+
 def band_gain(frequencies: np.ndarray, band: tuple[float, float], order: int = 4) -> np.ndarray:
     """Power gain |H(f)|^2 of the ``order``-th order Butterworth band-pass (SciPy's analog design) at
     ``frequencies`` (Hz): what the filter run forward and backward (zero phase) does to each frequency."""
     numerator, denominator = _butterworth(tuple(band), order)
     _, response = signal.freqs(numerator, denominator, worN=2 * np.pi * np.abs(frequencies))
     return np.abs(response) ** 2
+
 
 @functools.lru_cache(maxsize=16)
 def noise_bandwidth(band: tuple[float, float], order: int = 4) -> float:

@@ -43,6 +43,7 @@ def saturated(samples: np.ndarray, share: float = 0.01) -> bool:
     magnitude = np.abs(samples)
     return bool(np.count_nonzero(magnitude >= magnitude.max()) > share * samples.size)
 
+
 def detection_statistic(samples: np.ndarray, band: tuple[float, float], rate: float, padding: int = 4) -> float:
     """A tone channel's CFAR detection statistic (linear): the peak of its envelope's periodogram over
     the noise's power per bin, both within ``band`` (Hz, about the envelope's carrier).
@@ -57,6 +58,7 @@ def detection_statistic(samples: np.ndarray, band: tuple[float, float], rate: fl
     offsets = np.fft.fftfreq(count, 1.0 / rate)
     in_band = power[(offsets >= band[0]) & (offsets <= band[1])]
     return float(in_band.max() / (np.median(in_band) / np.log(2)))
+
 
 @functools.lru_cache(maxsize=64)
 def _frame_gain(count: int, rate: float, carrier: float, band: tuple[float, float],
@@ -80,6 +82,7 @@ def _frame_gain(count: int, rate: float, carrier: float, band: tuple[float, floa
     bins.setflags(write=False)
     gain.setflags(write=False)
     return bins, gain
+
 
 def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard: float = 0.0) -> Channel:
     """Both channels as complex envelopes about the waveform's carrier, band-passed, with ``guard``
@@ -116,11 +119,13 @@ def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard:
     keep = slice(int(round(guard * rate)), len(times) - int(round(guard * rate)))
     return Channel(times[keep], filtered[0][keep], filtered[1][keep], rate, waveform.carrier)
 
+
 @dataclass(frozen=True)
 class FrameEstimate:
     range_difference: float  # m, c * TDOA (a tone's modulo one wavelength)
     range_rate_difference: float  # m/s, c * d(TDOA)/dt = (c / f0) * FDOA
     coherence: float  # mean normalized cross-correlation magnitude at the chosen lags, in [0, 1]
+
 
 def coarse_lag(envelope: Channel, max_lag: int) -> int:
     """Lag (samples) of the peak of |R(k)|, R(k) = sum_t m(t) conj(f(t - k)), over the whole frame and
@@ -132,6 +137,7 @@ def coarse_lag(envelope: Channel, max_lag: int) -> int:
     full = signal.correlate(envelope.fixed, inner, mode="valid", method="fft")  # n -> conj(R(max_lag - n))
     return int(max_lag - np.argmax(np.abs(full)))
 
+
 @functools.lru_cache(maxsize=16)
 def noise_lag_product(noise_level_db: float, band: tuple[float, float], carrier: float, rate: float) -> complex:
     """E[conj(n_t) n_(t+1)] of band-passed noise in a complex envelope about ``carrier`` at ``rate`` Hz
@@ -141,6 +147,7 @@ def noise_lag_product(noise_level_db: float, band: tuple[float, float], carrier:
     frequencies = np.linspace(max(band[0] - 2 * width, 0.0), band[1] + 2 * width, 4001)
     density = 2 * 10 ** (noise_level_db / 10) / width * band_gain(frequencies, band) ** 2
     return complex(integrate.trapezoid(density * np.exp(2j * np.pi * (frequencies - carrier) / rate), frequencies))
+
 
 def _window_delays(envelope: Channel, edges: np.ndarray, lag: int, tone: bool,
                    noise_lag: complex = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -174,6 +181,7 @@ def _window_delays(envelope: Channel, edges: np.ndarray, lag: int, tone: bool,
     centres = np.add.reduceat(envelope.times[low:high], starts) / lengths
     return delays, np.abs(correlation) / energy, centres
 
+
 @dataclass(frozen=True)
 class DelayTrack:
     """Per-window delays of one frame: what the correlation stage hands to the TDOA / FDOA stage."""
@@ -181,6 +189,7 @@ class DelayTrack:
     delays: np.ndarray  # s, mobile behind fixed (a tone's continuous across windows, modulo one period overall)
     times: np.ndarray  # s, the time each delay belongs to
     coherences: np.ndarray  # normalized correlation magnitude per window
+
 
 def delay_track(envelope: Channel, waveform: Waveform, max_delay: float, windows: int = 10,
                 noise_level_db: float | None = None) -> DelayTrack:
@@ -200,6 +209,7 @@ def delay_track(envelope: Channel, waveform: Waveform, max_delay: float, windows
         delays = np.unwrap(delays * 2 * np.pi / period) * period / (2 * np.pi)
     return DelayTrack(delays, times, coherences)
 
+
 def tdoa_fdoa(track: DelayTrack, sound_speed: float) -> FrameEstimate:
     """The TDOA / FDOA stage: RD from the track's mean delay, RRD from its least-squares time slope."""
     offsets = track.times - track.times.mean()
@@ -207,11 +217,13 @@ def tdoa_fdoa(track: DelayTrack, sound_speed: float) -> FrameEstimate:
     return FrameEstimate(float(sound_speed * track.delays.mean()), float(sound_speed * slope),
                          float(np.mean(track.coherences)))
 
+
 def estimate(envelope: Channel, waveform: Waveform, sound_speed: float, max_delay: float, windows: int = 10,
              noise_level_db: float | None = None) -> FrameEstimate:
     """[RD, RRD] of one frame from the two channels' complex envelopes (see the module docstring and
     :func:`delay_track`)."""
     return tdoa_fdoa(delay_track(envelope, waveform, max_delay, windows, noise_level_db), sound_speed)
+
 
 def tone_measurement_sd(snr_mobile: float, snr_fixed: float, wavelength: float, bandwidth: float,
                         duration: float) -> tuple[float, float]:
@@ -225,6 +237,7 @@ def tone_measurement_sd(snr_mobile: float, snr_fixed: float, wavelength: float, 
     scale = wavelength / (2 * np.pi)
     return (scale * np.sqrt(inverse_snr / (2 * bandwidth * duration)),
             scale * np.sqrt(6 * inverse_snr / (bandwidth * duration**3)))
+
 
 @dataclass
 class FrontEnd:

@@ -136,7 +136,8 @@ class SignalSensor:
     def measure(self, rng: np.random.Generator, time: float, source_position, source_velocity, mobile, mobile_velocity,
                 fixed, range_rate_bias: float = 0.0) -> np.ndarray:
         fault = self.fault if self.fault.active(time) else None
-        corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level) if fault and fault.kind != "dropped" else None
+        corrupted = fault is not None and fault.kind != "dropped"  # a dropped frame is synthesized intact
+        corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level) if corrupted else None
         result, self._snr, heard = self.front_end.measure(rng, time, source_position, source_velocity, mobile,
                                                           mobile_velocity, fixed, corrupt)
         self._covariance = np.diag(signal_noise_sd(self.config, self._snr[0], self._snr[1]) ** 2)

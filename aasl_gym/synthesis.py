@@ -32,14 +32,17 @@ from aasl_gym.bandpass import band_gain
 
 WAVEFORM_KINDS = ("tone", "sweep", "hop")
 
+
 def receiver_band(kind: str, frequency: float = 1000.0, low: float = 500.0,
                   high: float = 1500.0) -> tuple[float, float]:
     """Hz, the receiver's band for a waveform: +-10 % about a tone's f0, else the sweep's or hops' range."""
     return (0.9 * frequency, 1.1 * frequency) if kind == "tone" else (low, high)
 
+
 def carrier_frequency(kind: str, frequency: float = 1000.0, low: float = 500.0, high: float = 1500.0) -> float:
     """Hz, the frequency the complex envelopes are taken about: f0 for a tone, else the band's centre."""
     return frequency if kind == "tone" else 0.5 * (low + high)
+
 
 @dataclass(frozen=True)
 class Waveform:
@@ -114,6 +117,7 @@ class Waveform:
             return self.low + (self.high - self.low) / self.period * within
         return np.asarray(self.hops)[cycle.astype(np.int64) % len(self.hops)]
 
+
 @dataclass(frozen=True)
 class Channel:
     """One frame as synthesized: sample times (s) and the two channels (mobile, fixed)."""
@@ -123,6 +127,7 @@ class Channel:
     fixed: np.ndarray  # (N,)
     rate: float  # Hz, sample rate
     carrier: float  # Hz, 0 for real signals, else the envelope's reference frequency
+
 
 @dataclass(frozen=True)
 class FrameFault:
@@ -134,6 +139,7 @@ class FrameFault:
     channels: tuple[bool, bool]
     clip_level: float = 0.1
 
+
 def clipped(samples: np.ndarray, level: float) -> np.ndarray:
     """Samples saturated at ``level`` times their RMS amplitude; a complex envelope's real and
     imaginary parts saturate apart, each at ``level`` times its own share of the power."""
@@ -142,10 +148,12 @@ def clipped(samples: np.ndarray, level: float) -> np.ndarray:
     limit = level * np.sqrt(np.mean(samples**2))
     return np.clip(samples, -limit, limit)
 
+
 def frame_times(centre: float, duration: float, rate: float) -> np.ndarray:
     """Sample times (s) of a frame of ``duration`` s centred on ``centre``."""
     count = int(round(duration * rate))
     return centre + (np.arange(count) - 0.5 * (count - 1)) / rate
+
 
 def path_sources(source: np.ndarray, source_velocity: np.ndarray, reflections: bool, water_depth: float,
                  surface_reflection: float, bed_reflection: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
@@ -156,6 +164,7 @@ def path_sources(source: np.ndarray, source_velocity: np.ndarray, reflections: b
             np.asarray(source, float), np.asarray(source_velocity, float), water_depth)
         paths += [(surface, surface_v, surface_reflection), (bed, bed_v, bed_reflection)]
     return paths
+
 
 def received_pressure(waveform: Waveform, times: np.ndarray, centre: float, paths, receivers: np.ndarray,
                       receiver_velocities: np.ndarray, sound_speed: float, amplitude: float, analytic: bool,
@@ -183,6 +192,7 @@ def received_pressure(waveform: Waveform, times: np.ndarray, centre: float, path
             total += pressure * np.cos(phase)
     return total
 
+
 def noise_sd(noise_level_db: float, band: tuple[float, float], rate: float, complex_samples: bool = False) -> float:
     """Per-sample sd of white noise at ``rate`` Hz whose power inside ``band`` is ``noise_level_db`` (re 1 uPa^2).
 
@@ -193,9 +203,11 @@ def noise_sd(noise_level_db: float, band: tuple[float, float], rate: float, comp
     sd = float(np.sqrt(10 ** (noise_level_db / 10) * (0.5 * rate) / bandwidth))
     return sd * np.sqrt(2.0) if complex_samples else sd
 
+
 def peak_amplitude(source_level_db: float) -> float:
     """Peak pressure at 1 m (uPa) of a sinusoid whose RMS is ``source_level_db`` dB re 1 uPa."""
     return float(np.sqrt(2.0) * 10 ** (source_level_db / 20))
+
 
 def synthesize(waveform: Waveform, centre: float, duration: float, rate: float, baseband: bool, paths,
                mobile, mobile_velocity, fixed, sound_speed: float, source_level_db: float,
@@ -229,6 +241,7 @@ def synthesize(waveform: Waveform, centre: float, duration: float, rate: float, 
         for row in np.flatnonzero(corrupted):
             channels[row] = clipped(channels[row], fault.clip_level)
     return Channel(times, channels[0], channels[1], rate, carrier)
+
 
 @functools.lru_cache(maxsize=16)
 def _noise_bins(count: int, rate: float, carrier: float, band: tuple[float, float]) -> np.ndarray:
