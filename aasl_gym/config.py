@@ -265,6 +265,7 @@ class FilterConfig:
     recovery_inflation: float = 4.0  # an inconsistent filter re-seeds with its covariance times this
     window_fit: bool = True  # re-seeds refine their best hypotheses by a sliding-window MAP (aasl_gym.window)
     sheet_check_interval: float = 10.0  # s: after the growing window, test the neighbouring whole-period sheets (0: never)
+    frame_samples: int = 3  # signal mode, phasor model: times per frame the model is averaged over (1: the centre)
 
     def __post_init__(self) -> None:
         _choice(self.motion_model, FILTER_MODELS, "filter.motion_model")
@@ -284,6 +285,8 @@ class FilterConfig:
         _positive(self.ripple_window, "filter.ripple_window")
         _check(isinstance(self.window_fit, bool), "filter.window_fit", f"must be true or false, got {self.window_fit!r}")
         _non_negative(self.sheet_check_interval, "filter.sheet_check_interval")
+        _check(isinstance(self.frame_samples, int) and self.frame_samples >= 1, "filter.frame_samples",
+               f"must be an integer >= 1, got {self.frame_samples!r}")
         _check(self.recovery_inflation >= 1, "filter.recovery_inflation", f"must be >= 1, got {self.recovery_inflation}")
 
 

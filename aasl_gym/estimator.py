@@ -76,7 +76,8 @@ from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_wei
 from aasl_gym.fisher import information_prior
 from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, robust_loss
 from aasl_gym.measurement_models import (
-    Propagation, direct_measurement, multipath_measurement, multipath_spread, receiver_jacobian, receiver_noise,
+    Propagation, direct_measurement, frame_averaged, frame_offsets, multipath_measurement, multipath_spread,
+    receiver_jacobian, receiver_noise,
 )
 from aasl_gym.motion import Box, receiver_region
 from aasl_gym.window import fit_window, subsample, whitened_residuals
@@ -86,6 +87,7 @@ logger = logging.getLogger(__name__)
 EXTRA_STATE_SD = {"cv": 0.0, "ca": 0.02, "ctrv": 0.1}  # initial sd of acceleration (m/s^2) / turn rate (rad/s)
 RIPPLE_SAMPLES = 120  # a fine (phasor) window fit uses at most this many samples, evenly spaced
 RIPPLE_FITS = 4  # window fits that go on to the phasor model's ripple (the best of the coarse fits)
+RIPPLE_NIS_CAP = 20.0  # largest NIS one frame adds to the divergence test's mean under the phasor model
 RIPPLE_GATE = 3.0  # robust cost per residual a fine window fit may have (at the truth ~1.5, in a wrong dip ~9)
 
 
@@ -146,6 +148,11 @@ class SourceTracker:
         self.measurement_function = (
             direct_measurement if multipath == "none" else partial(multipath_measurement, multipath, self.propagation)
         )
+        if self.ripple and config.measurement.mode == "signal" and f.frame_samples > 1 and self.wavelength:
+            # The front end's RD and RRD are a frame's mean and slope: at an interference null the phasor
+            # model's centre value misses them by many sd (tuning seeds 0-2: 12 % of RD frames beyond 3 sd).
+            offsets = frame_offsets(config.signal.frame_duration, f.frame_samples)
+            self.measurement_function = partial(frame_averaged, self.measurement_function, offsets, self.propagation.wavenumber)
         self.window_function = direct_measurement if self.ripple else self.measurement_function
         self.sigma_spread = merwe_weights(self.model.dim, f.alpha, f.beta, f.kappa)[2]
         # What the phasor model's correction adds when unresolved: LC-MAP and the re-seed windows weigh
@@ -340,7 +347,12 @@ class SourceTracker:
         if not self.config.filter.window_fit:
             self.bank = [self._hypothesis(*candidates[i], -0.5 * (chi_square[i] - chi_square[kept[0]]), time) for i in kept]
             return kept[0] >= len(running)
-        fits = self._fit_window(len(burst.times), states[kept])
+        # A filter that resolved the ripple competes whatever the coarse ranking (which cannot tell it from
+        # candidates metres off) and the diversity cut say.
+        resolved_running = [i for i, h in enumerate(self.bank) if h.resolved and np.isfinite(chi_square[i])]
+        kept += [i for i in resolved_running if i not in kept]
+        resolved = [j for j, i in enumerate(kept) if i in resolved_running]
+        fits = self._fit_window(len(burst.times), states[kept], resolved)
         self._bank_from_fits(fits, time)
         return kept[fits[0][0]] >= len(running)
 
@@ -403,7 +415,8 @@ class SourceTracker:
         duplicate[:running] = False
         return duplicate
 
-    def _fit_window(self, length: int, states: np.ndarray) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
+    def _fit_window(self, length: int, states: np.ndarray, resolved_starts: np.ndarray | None = None
+                    ) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
         """The sliding-window MAP (:func:`aasl_gym.window.fit_window`) of the last ``length`` samples
         from each of ``states`` (H, n): (start index, state, covariance, log weight, resolved), best first.
 
@@ -411,6 +424,9 @@ class SourceTracker:
         best ``RIPPLE_FITS`` of those with the phasor model itself. A fine fit that does not
         explain the window (robust cost per residual above ``RIPPLE_GATE``) sits in a wrong dip of the
         ripple: its coarse fit is kept instead, unresolved, after the fine fits that passed.
+        ``resolved_starts`` (indices into ``states``: filters that resolved the ripple) also go to the
+        fine fit as they are: the coarse fit is biased by the ripple it ignores (metres near the
+        surface), and from there the fine fit can settle in a wrong dip that beats a right filter.
         """
         ini = self.config.initializer
         prior_mean, prior_sd = self._window_prior(states)
@@ -422,12 +438,16 @@ class SourceTracker:
         if not self.ripple:
             return coarse
         burst = subsample(self._burst(length, fine=True), RIPPLE_SAMPLES)
-        top = order[:RIPPLE_FITS]
-        fine = fit_window(burst, self.model, fit.states[top], prior_mean[top], prior_sd, robust=True)
+        direct = np.array([], dtype=int) if resolved_starts is None else np.asarray(resolved_starts, dtype=int)
+        top = np.concatenate([order[:RIPPLE_FITS], direct])
+        starts = np.concatenate([fit.states[order[:RIPPLE_FITS]], states[direct]])
+        fine = fit_window(burst, self.model, starts, prior_mean[top], prior_sd, robust=True)
         passed = np.flatnonzero(fine.costs <= RIPPLE_GATE * burst.measurements.size)
         if passed.size == 0:
             return coarse
         fine_covariances = _covariances(fine.information, ini.covariance_inflation)
+        passed = passed[np.argsort(fine.costs[passed], kind="stable")]
+        passed = passed[np.unique(top[passed], return_index=True)[1]]  # the better fine fit of a start
         passed = passed[np.argsort(fine.costs[passed], kind="stable")]
         best_cost = fine.costs[passed[0]]
         resolved = [(top[i], fine.states[i], fine_covariances[i], -0.5 * (fine.costs[i] - best_cost), True) for i in passed]
@@ -473,7 +493,11 @@ class SourceTracker:
     def _inconsistent(self, hypothesis: Hypothesis, time: float) -> bool:
         if time - hypothesis.started < self.config.filter.reinit_cooldown or len(hypothesis.nis) < self.nis_length:
             return False
-        return float(np.mean(hypothesis.nis)) > self.config.filter.divergence_nis
+        nis = np.asarray(hypothesis.nis)
+        if self.ripple:
+            # A frame at an interference null can miss by many sd: one such frame must not decide.
+            nis = np.minimum(nis, RIPPLE_NIS_CAP)
+        return float(np.mean(nis)) > self.config.filter.divergence_nis
 
     def _assimilate(self, dt: float, z: np.ndarray, noise: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray,
                     time: float) -> None:

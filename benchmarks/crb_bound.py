@@ -8,11 +8,19 @@ fixes it) bounds the covariance of the position at every time. Jacobians are cen
 differences through the truth motion itself (``advance_source``), so the bound uses the exact model of
 each motion, speed cap and surface/bed reflections included.
 
+``--model matched`` evaluates the bound with the world's own measurement model: in a world with
+reflections the exact phasor model (the apparent RD and RRD of the tone's multipath sums), weighted with
+R_eff = R_ac + H_r Sigma_r H_r^T, H_r that model's receiver Jacobian at the truth (near an interference
+null the apparent RD moves with the receiver far faster than the direct path's), and in signal mode R_ac
+the front end's Cramer-Rao covariance at the SNR each hydrophone receives through the multipath sum.
+The default ``direct`` is the direct-path model with the tracker's fixed R (the free field's bound).
+
 Reported per motion: the share of episodes whose bound on the position error sd falls below
 ``--target`` metres and stays there to the end, and the median time it first does. An estimator whose
 1 m success rate is near that share is close to what the geometry allows.
 
     python benchmarks/crb_bound.py --motions static cv ca ctrv --episodes 100 --seed 1000 --config configs/initializer_study.yaml
+    python benchmarks/crb_bound.py --model matched --config configs/default.yaml --seed 710000 --target 1.0
 """
 
 from __future__ import annotations
@@ -22,10 +30,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from aasl_gym.config import load_config
+from aasl_gym import geometry
+from aasl_gym.config import EnvConfig, load_config
 from aasl_gym.env import AASLEnv
 from aasl_gym.io import atomic_write_text
-from aasl_gym.measurement_models import direct_measurement
+from aasl_gym.measurement_models import (
+    Propagation, model_snr, multipath_measurement, receiver_jacobian, receiver_noise, signal_noise_sd,
+)
 from aasl_gym.motion import SourceState, advance_source
 
 
@@ -43,8 +54,43 @@ def _simulate(env: AASLEnv, state: SourceState, steps: int) -> np.ndarray:
     return positions
 
 
-def episode_bound(env: AASLEnv, seed: int) -> np.ndarray:
-    """Bound on the position error sd (m) after every step of episode ``seed``."""
+def multipath_gain(propagation: Propagation, source: np.ndarray, receiver: np.ndarray) -> np.ndarray:
+    """|M|, the tone's amplitude through the surface and bed images relative to the direct path's, at
+    ``receiver`` (m; broadcasts): M = 1 + sum_i a_i (d / r_i) exp(-j k (r_i - d))."""
+    direct = np.linalg.norm(source - receiver, axis=-1)
+    factor = np.ones(direct.shape, dtype=complex)
+    images = geometry.image_sources(source, np.zeros_like(source), propagation.water_depth)
+    for (image, _), gain in zip(images, (propagation.surface_reflection, propagation.bed_reflection)):
+        image_range = np.linalg.norm(image - receiver, axis=-1)
+        factor += gain * direct / image_range * np.exp(-1j * propagation.wavenumber * (image_range - direct))
+    return np.abs(factor)
+
+
+def matched_weights(config: EnvConfig, propagation: Propagation, truth: np.ndarray, mobile: np.ndarray,
+                    mobile_velocity: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+    """R_eff^-1 (steps, 2, 2) of the world's own model along the true track ``truth`` (steps, 6)."""
+    model = "phasor" if config.world.reflections else "none"
+
+    def measure(p, v, p_m, v_m, p_f):
+        return multipath_measurement(model, propagation, p, v, p_m, v_m, p_f)
+
+    if config.measurement.mode == "signal":
+        gains = [multipath_gain(propagation, truth[:, :3], r) if config.world.reflections else 1.0 for r in (mobile, fixed)]
+        snr = [model_snr(config, truth[:, :3], r) * g**2 for r, g in zip((mobile, fixed), gains)]
+        sd = signal_noise_sd(config, snr[0], snr[1])
+    else:
+        sd = np.broadcast_to([config.measurement.range_difference_sd, config.measurement.range_rate_difference_sd], (len(truth), 2))
+    acoustic = np.einsum("ki,ij->kij", sd**2, np.eye(2))
+    navigation = np.zeros_like(acoustic)
+    if config.filter.compensate_navigation:
+        jacobian = receiver_jacobian(measure, truth[:, :3], truth[:, 3:], mobile, mobile_velocity, fixed)
+        navigation = receiver_noise(jacobian, config.receiver.nav_position_sd, config.receiver.velocity_sd)
+    return np.linalg.inv(acoustic + navigation)
+
+
+def episode_bound(env: AASLEnv, seed: int, model: str = "direct") -> np.ndarray:
+    """Bound on the position error sd (m) after every step of episode ``seed``, with the direct-path
+    model or the world's own (``model``: direct or matched)."""
     env.reset(seed=seed)
     source = env.source
     steps = env.max_steps
@@ -59,9 +105,19 @@ def episode_bound(env: AASLEnv, seed: int) -> np.ndarray:
     prior_sd = [ini.position_sd] * 3 + [ini.velocity_prior_sd] * 3 + ([0.02] * 3 if kind == "ca" else [0.05] if kind == "ctrv" else [])
     n = len(kinematic)
 
+    config = env.config
+    propagation = Propagation.from_config(config.world, config.source.frequency)
+    world_model = "phasor" if model == "matched" and config.world.reflections else "none"
+
     def trajectory(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         truth = _simulate(env, _unpack(kind, theta, source), steps)
-        return truth[:, :3], direct_measurement(truth[:, :3], truth[:, 3:], mobile, mobile_velocity, env.fixed)
+        z = multipath_measurement(world_model, propagation, truth[:, :3], truth[:, 3:], mobile, mobile_velocity, env.fixed)
+        return truth[:, :3], z
+
+    if model == "matched":
+        weights = matched_weights(config, propagation, _simulate(env, source, steps), mobile, mobile_velocity, env.fixed)
+    else:
+        weights = np.broadcast_to(np.linalg.inv(env.filter_covariance), (steps, 2, 2))
 
     d_position = np.empty((steps, 3, n + 1))
     d_measurement = np.zeros((steps, 2, n + 1))
@@ -78,9 +134,8 @@ def episode_bound(env: AASLEnv, seed: int) -> np.ndarray:
         (p_plus, z_plus), (p_minus, z_minus) = trajectory(plus), trajectory(minus)
         d_position[:, :, i] = (p_plus - p_minus) / (2 * step)
         d_measurement[:, :, i] = (z_plus - z_minus) / (2 * step)
-    weight = np.linalg.inv(env.filter_covariance)
     information = np.diag(np.array(prior_sd + [ini.range_bias_sd]) ** -2.0)
-    increments = np.einsum("kia,ij,kjb->kab", d_measurement, weight, d_measurement)
+    increments = np.einsum("kia,kij,kjb->kab", d_measurement, weights, d_measurement)
     cumulative = information + np.cumsum(increments, axis=0)
     covariance = np.linalg.inv(cumulative)
     position_covariance = np.einsum("kia,kab,kjb->kij", d_position, covariance, d_position)
@@ -105,6 +160,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--config", default="configs/initializer_study.yaml")
     parser.add_argument("--target", type=float, default=0.5, help="bound on the position error sd, m")
+    parser.add_argument("--model", choices=["direct", "matched"], default="direct",
+                        help="measurement model: the direct path, or the world's own (phasor with reflections)")
     parser.add_argument("--out", default=None, help="markdown file for the table")
     args = parser.parse_args(argv)
     base = load_config(args.config)
@@ -115,7 +172,7 @@ def main(argv: list[str] | None = None) -> None:
             env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol="helix")
             times = []
             for seed in range(args.seed, args.seed + args.episodes):
-                bound = episode_bound(env, seed)
+                bound = episode_bound(env, seed, args.model)
                 above = np.nonzero(bound >= args.target)[0]
                 last_above = above[-1] if len(above) else -1
                 times.append((last_above + 2) * env.dt if last_above + 1 < len(bound) else np.inf)

@@ -1,5 +1,6 @@
 """Quick tracker check: success at 1 m, lost tracks, re-initializations and seconds per episode of the
-helix on a few seeds, in the default world and the free field (both geometric, as in the tracker issue).
+helix on a few seeds: ``signal`` is the default world as shipped, ``default`` the same world and ``free`` the
+free field with geometric measurements (as in the tracker issue).
 
     python benchmarks/tracker_check.py default:static,cv:10000:16 free:cv,ca:1000:20 [--set filter.window_fit=false]
 
@@ -18,6 +19,7 @@ from multiprocessing import Pool
 import numpy as np
 
 WORLDS = {
+    "signal": {},  # the default world as shipped: the acoustic front end, reflections, the phasor filter
     "default": {"measurement": {"mode": "geometric"}},
     "free": {"world": {"reflections": False}, "filter": {"multipath": "none"}, "measurement": {"mode": "geometric"}},
 }

@@ -111,7 +111,8 @@ def test_an_unresolved_hypothesis_takes_the_ripple_as_noise():
     mobile, mobile_velocity = np.array([15.0, 0.0, -7.0]), np.array([0.0, 1.0, 0.0])
     z, noise = tracker._sigma_measurements(sigmas[None], np.array([2.0]), np.array([False]), mobile, mobile_velocity)
     direct = direct_measurement(sigmas[:, 0:3], sigmas[:, 3:6], mobile, mobile_velocity, FIXED)
-    correction = PHASOR(sigmas[:, 0:3], sigmas[:, 3:6], mobile, mobile_velocity, FIXED) - direct
+    # The tracker's phasor model: averaged over the frame, as its signal-mode front end measures.
+    correction = tracker.measurement_function(sigmas[:, 0:3], sigmas[:, 3:6], mobile, mobile_velocity, FIXED) - direct
     correction[:, 0] = correction[0, 0] + geometry.wrap_to_period(correction[:, 0] - correction[0, 0], 1.5)
     np.testing.assert_allclose(z[0] - sigmas[:, -2:], direct + correction[0], atol=1e-9)
     deviation = correction[1:] - correction[0]
