@@ -1,0 +1,143 @@
+"""Property-based tests (Hypothesis) of the geometry and the filter's measurement models on random
+states: the triangle inequality, the Jacobians against central differences, RRD as the time derivative
+of RD, the sign conventions of the contract. Derandomized (``conftest.py``): the same cases every run."""
+
+from functools import partial
+
+import numpy as np
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from aasl_gym import geometry
+from aasl_gym.fisher import measurement_jacobian
+from aasl_gym.measurement_models import (
+    Propagation,
+    direct_measurement,
+    frame_averaged,
+    frame_offsets,
+    multipath_measurement,
+    receiver_jacobian,
+)
+
+FIXED = np.array([0.0, 0.0, -0.96])
+PROPAGATION = Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5)
+PHASOR = partial(multipath_measurement, "phasor", PROPAGATION)
+
+
+def vectors(low, high):
+    """3-vectors with each coordinate in [low, high] (scalars or per-axis lists)."""
+    low, high = np.broadcast_to(low, 3), np.broadcast_to(high, 3)
+    return st.tuples(*(st.floats(float(a), float(b), allow_nan=False) for a, b in zip(low, high))).map(np.array)
+
+
+SOURCES = vectors([-60, -60, -58], [60, 60, -1.5])  # in the 60 m water column, below the surface
+MOBILES = vectors([-30, -30, -20], [30, 30, -2])
+VELOCITIES = vectors(-2, 2)
+
+
+def apart(*points, distance=1.0) -> bool:
+    """Every pair of ``points`` at least ``distance`` metres apart (the models are singular at a receiver)."""
+    return all(np.linalg.norm(a - b) >= distance for i, a in enumerate(points) for b in points[i + 1:])
+
+
+@given(SOURCES, MOBILES)
+def test_range_difference_is_bounded_by_the_baseline(source, mobile):
+    """Triangle inequality: |RD| = ||p - p_m| - |p - p_f|| <= |p_m - p_f|."""
+    assume(apart(source, mobile, FIXED))
+    rd = geometry.range_difference(source, mobile, FIXED)
+    assert abs(rd) <= np.linalg.norm(mobile - FIXED) + 1e-9
+
+
+@given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
+def test_swapping_the_hydrophones_negates_rd_and_rrd(source, velocity, mobile, mobile_velocity):
+    """RD and RRD are differences mobile minus fixed: exchanging the receivers (with their velocities)
+    changes their sign."""
+    assume(apart(source, mobile, FIXED))
+    forward = geometry.range_rate_difference(source, velocity, mobile, mobile_velocity, FIXED)
+    backward = geometry.range_rate_difference(source, velocity, FIXED, np.zeros(3), mobile, mobile_velocity)
+    assert np.isclose(forward, -backward, atol=1e-12)
+    assert np.isclose(geometry.range_difference(source, mobile, FIXED), -geometry.range_difference(source, FIXED, mobile))
+
+
+@given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
+def test_rrd_is_the_time_derivative_of_rd(source, velocity, mobile, mobile_velocity):
+    """Source and robot moving straight on, the fixed hydrophone still: RRD = d RD / dt (central
+    difference over +-1 ms)."""
+    assume(apart(source, mobile, FIXED))
+    step = 1e-3
+
+    def rd(time):
+        return geometry.range_difference(source + velocity * time, mobile + mobile_velocity * time, FIXED)
+
+    derivative = (rd(step) - rd(-step)) / (2 * step)
+    rrd = geometry.range_rate_difference(source, velocity, mobile, mobile_velocity, FIXED)
+    assert np.isclose(rrd, derivative, atol=1e-5)
+
+
+@given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
+def test_the_direct_jacobian_matches_central_differences(source, velocity, mobile, mobile_velocity):
+    """d[RD, RRD] / d[p, v] in closed form against central differences of the direct model."""
+    assume(apart(source, mobile, FIXED))
+    state = np.concatenate([source, velocity])
+    step = 1e-5
+    numeric = np.empty((2, 6))
+    for i in range(6):
+        plus, minus = state.copy(), state.copy()
+        plus[i] += step
+        minus[i] -= step
+        numeric[:, i] = (direct_measurement(plus[:3], plus[3:], mobile, mobile_velocity, FIXED)
+                         - direct_measurement(minus[:3], minus[3:], mobile, mobile_velocity, FIXED)) / (2 * step)
+    closed = geometry.direct_jacobian(source, velocity, mobile, mobile_velocity, FIXED)
+    np.testing.assert_allclose(closed, numeric, atol=1e-6)
+    # The information's Jacobian adds the two biases, each with unit gain.
+    full = measurement_jacobian(source, velocity, mobile, mobile_velocity, FIXED)
+    np.testing.assert_allclose(full[:, :6], closed)
+    np.testing.assert_array_equal(full[:, 6:], np.eye(2))
+
+
+@given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
+def test_the_receiver_jacobian_matches_central_differences(source, velocity, mobile, mobile_velocity):
+    """d[RD, RRD] / d[p_m, v_m] of the direct path (closed form) against central differences of the model."""
+    assume(apart(source, mobile, FIXED))
+    step = 1e-5
+    numeric = np.empty((2, 6))
+    for i in range(6):
+        offset = np.zeros(6)
+        offset[i] = step
+        plus = direct_measurement(source, velocity, mobile + offset[:3], mobile_velocity + offset[3:], FIXED)
+        minus = direct_measurement(source, velocity, mobile - offset[:3], mobile_velocity - offset[3:], FIXED)
+        numeric[:, i] = (plus - minus) / (2 * step)
+    np.testing.assert_allclose(receiver_jacobian(direct_measurement, source, velocity, mobile, mobile_velocity, FIXED),
+                               numeric, atol=1e-6)
+
+
+@given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
+def test_the_phasor_rrd_is_the_time_derivative_of_its_rd(source, velocity, mobile, mobile_velocity):
+    """With reflections the apparent RRD is still d RD_app / dt: the RD's central difference over
+    +-0.1 ms, taken modulo one wavelength (the phasor RD is continuous only up to whole periods)."""
+    assume(apart(source, mobile, FIXED, distance=2.0))
+    step = 1e-4
+
+    def rd(time):
+        return PHASOR(source + velocity * time, velocity, mobile + mobile_velocity * time, mobile_velocity, FIXED)[0]
+
+    difference = geometry.wrap_to_period(rd(step) - rd(-step), 1.5)
+    rrd = PHASOR(source, velocity, mobile, mobile_velocity, FIXED)[1]
+    # Near an interference null the apparent RD curves sharply: allow a share of the rate's size.
+    assert np.isclose(rrd, difference / (2 * step), atol=1e-3, rtol=1e-2)
+
+
+@given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
+def test_without_images_every_model_is_the_direct_path(source, velocity, mobile, mobile_velocity):
+    """Reflection coefficients of zero: the phasor and linear models are the direct path, and so is the
+    frame average of a model that is linear in time to the eye of a 0.2 s frame."""
+    assume(apart(source, mobile, FIXED))
+    silent = Propagation(60.0, 0.0, 0.0, PROPAGATION.wavenumber)
+    direct = direct_measurement(source, velocity, mobile, mobile_velocity, FIXED)
+    for model in ("phasor", "linear"):
+        np.testing.assert_allclose(multipath_measurement(model, silent, source, velocity, mobile, mobile_velocity, FIXED),
+                                   direct, atol=1e-9)
+    averaged = frame_averaged(partial(multipath_measurement, "phasor", silent), frame_offsets(0.2, 3),
+                              PROPAGATION.wavenumber, source, velocity, mobile, mobile_velocity, FIXED)
+    # Over +-0.1 s the direct RD curves by at most (relative speed)^2 t^2 / range: millimetres.
+    np.testing.assert_allclose(averaged, direct, atol=2e-2)
