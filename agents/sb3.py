@@ -6,6 +6,9 @@ loaded policy sees observations exactly as it did in training. Both are written 
 also carries the id of the env it was trained on (``aasl_env_id``; SB3 saves a model's attributes with
 it), because a policy trained on ``AASL-Greedy-v0`` outputs a residual on the planner's command and
 must be run in that env: :attr:`LoadedPolicy.env_id` tells the evaluation which.
+
+:func:`train` runs a training schedule (:mod:`agents.training`) with the callbacks of
+:func:`make_callbacks`: evaluation on fixed seeds, atomic checkpoints and the episodes' metrics.
 """
 
 from __future__ import annotations
@@ -17,14 +20,15 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
 
+from aasl_gym.config import ConfigError, EnvConfig
 from aasl_gym.io import atomic_write, atomic_write_text
 from aasl_gym.registration import ENV_IDS
 from agents.rollout import play_episode
+from agents.training import ALGORITHMS, Schedule
 
 logger = logging.getLogger(__name__)
-
-ALGORITHMS = ("ppo", "sac", "td3", "a2c", "recurrent-ppo")
 
 
 def algorithm_class(name: str):
@@ -106,8 +110,98 @@ def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
     return policy
 
 
+class FixedSeedEvaluation(BaseCallback):
+    """Every ``eval_every`` env steps, runs the policy deterministically on the same seeds, so evaluations
+    compare; keeps the best model (by mean return) in ``out/best/``, rewrites the evaluations so far to
+    ``out/evaluations.csv`` (the learning curve, with or without TensorBoard) and hands ``report`` one line."""
+
+    def __init__(self, out: Path, make_env: Callable[[], Any], eval_seeds: list[int], eval_every: int,
+                 report: Callable[[str], None]):
+        super().__init__()
+        self.out, self.eval_seeds, self.eval_every, self.report = out, eval_seeds, eval_every, report
+        self.env = make_env()
+        self.best = -np.inf
+        self.next_at = eval_every
+        self.curve = ["timesteps,mean_return,success_1m,mean_convergence_time_s"]
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps < self.next_at:
+            return True
+        self.next_at += self.eval_every
+        mean_return, success, converged = self._evaluate()
+        mean_time = float(np.mean(converged)) if converged else float("nan")
+        self.logger.record("eval/mean_return", mean_return)
+        self.logger.record("eval/success_1m", success)
+        if converged:
+            self.logger.record("eval/mean_convergence_time", mean_time)
+        line = f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m {success:.0%}"
+        if converged:
+            line += f", mean convergence time {mean_time:.1f} s"
+        self.curve.append(f"{self.num_timesteps},{mean_return:.4f},{success:.4f},{mean_time:.4f}")
+        atomic_write_text(self.out / "evaluations.csv", "\n".join(self.curve) + "\n")
+        if mean_return > self.best:
+            self.best = mean_return
+            save_model(self.model, self.out / "best" / "model.zip")
+            line += " (best so far, saved)"
+        self.report(line)
+        return True
+
+    def _evaluate(self) -> tuple[float, float, list[float]]:
+        """Mean return, share of successes at 1 m, and the convergence times of the episodes that converged."""
+        policy = LoadedPolicy(self.model, self.model.get_vec_normalize_env())
+        returns, successes, times = [], [], []
+        for seed in self.eval_seeds:
+            rewards = []
+            info = play_episode(self.env, policy, seed, on_step=lambda reward, _: rewards.append(reward))
+            returns.append(sum(rewards))
+            successes.append(bool(info["success"]["1.0"]))
+            times.append(float(info["convergence_time"]))
+        return float(np.mean(returns)), float(np.mean(successes)), [t for t in times if np.isfinite(t)]
+
+
+class AtomicCheckpoint(BaseCallback):
+    """Every ``checkpoint_every`` env steps, saves the model to ``out/checkpoints/ALGO_STEPS.zip``, atomically."""
+
+    def __init__(self, out: Path, algo: str, checkpoint_every: int):
+        super().__init__()
+        self.out, self.algo, self.checkpoint_every = out, algo, checkpoint_every
+        self.next_at = checkpoint_every
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self.next_at:
+            self.next_at += self.checkpoint_every
+            save_model(self.model, self.out / "checkpoints" / f"{self.algo}_{self.num_timesteps}.zip")
+        return True
+
+
+class EpisodeMetrics(BaseCallback):
+    """Logs the training episodes' convergence time, success and final error beside the reward
+    (TensorBoard's ``episode/`` scalars), averaged over the episodes that ended in each rollout."""
+
+    def __init__(self):
+        super().__init__()
+        self.ended: list[dict] = []
+
+    def _on_step(self) -> bool:
+        self.ended += [info for info in self.locals.get("infos", []) if "convergence_time" in info]
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if not self.ended:
+            return
+        times = [float(i["convergence_time"]) for i in self.ended]
+        converged = [t for t in times if np.isfinite(t)]
+        self.logger.record("episode/success_1m", float(np.mean([bool(i["success"]["1.0"]) for i in self.ended])))
+        finals = [float(i["final_error"]) for i in self.ended if np.isfinite(float(i["final_error"]))]
+        if finals:
+            self.logger.record("episode/final_error", float(np.median(finals)))
+        if converged:
+            self.logger.record("episode/convergence_time", float(np.mean(converged)))
+        self.ended = []
+
+
 def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds: list[int], eval_every: int,
-                   checkpoint_every: int, report: Callable[[str], None]):
+                   checkpoint_every: int, report: Callable[[str], None]) -> list[BaseCallback]:
     """The training callbacks: evaluation on fixed seeds (keeping the best model), atomic checkpoints, and
     the training episodes' metrics in the log.
 
@@ -115,83 +209,50 @@ def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds
     ``report`` receives one line per evaluation (the CLI prints it); the evaluations so far are also
     rewritten to ``out/evaluations.csv`` after each one (the learning curve, with or without TensorBoard).
     """
-    from stable_baselines3.common.callbacks import BaseCallback
+    return [FixedSeedEvaluation(out, make_env, eval_seeds, eval_every, report),
+            AtomicCheckpoint(out, algo, checkpoint_every), EpisodeMetrics()]
 
-    class FixedSeedEvaluation(BaseCallback):
-        """Runs the policy deterministically on the same seeds every time, so evaluations compare."""
 
-        def __init__(self):
-            super().__init__()
-            self.env = make_env()
-            self.best = -np.inf
-            self.next_at = eval_every
-            self.curve = ["timesteps,mean_return,success_1m,mean_convergence_time_s"]
+def _tensorboard_log(out: Path) -> str | None:
+    """Where TensorBoard logs go, when it is installed."""
+    try:
+        import tensorboard  # noqa: F401
+    except ImportError:
+        return None
+    return str(out / "tb")
 
-        def _on_step(self) -> bool:
-            if self.num_timesteps < self.next_at:
-                return True
-            self.next_at += eval_every
-            policy = LoadedPolicy(self.model, self.model.get_vec_normalize_env())
-            returns, successes, times = [], [], []
-            for seed in eval_seeds:
-                rewards = []
-                info = play_episode(self.env, policy, seed, on_step=lambda reward, _: rewards.append(reward))
-                returns.append(sum(rewards))
-                successes.append(bool(info["success"]["1.0"]))
-                times.append(float(info["convergence_time"]))
-            mean_return, success = float(np.mean(returns)), float(np.mean(successes))
-            converged = [t for t in times if np.isfinite(t)]
-            mean_time = float(np.mean(converged)) if converged else float("nan")
-            self.logger.record("eval/mean_return", mean_return)
-            self.logger.record("eval/success_1m", success)
-            if converged:
-                self.logger.record("eval/mean_convergence_time", mean_time)
-            line = f"step {self.num_timesteps:,}: return {mean_return:.1f}, success at 1 m {success:.0%}"
-            if converged:
-                line += f", mean convergence time {mean_time:.1f} s"
-            self.curve.append(f"{self.num_timesteps},{mean_return:.4f},{success:.4f},{mean_time:.4f}")
-            atomic_write_text(out / "evaluations.csv", "\n".join(self.curve) + "\n")
-            if mean_return > self.best:
-                self.best = mean_return
-                save_model(self.model, out / "best" / "model.zip")
-                line += " (best so far, saved)"
-            report(line)
-            return True
 
-    class AtomicCheckpoint(BaseCallback):
-        def __init__(self):
-            super().__init__()
-            self.next_at = checkpoint_every
+def train(algo: str, config: EnvConfig, schedule: Schedule, hyperparameters: dict[str, Any], seed: int, out: Path,
+          report: Callable[[str], None]) -> Path:
+    """Train ``algo`` on ``schedule.env`` with ``config`` and save ``out/model.zip`` (with its normalization
+    statistics), besides the checkpoints, best model and learning curve of :func:`make_callbacks`; returns
+    the model's path. ``report`` receives the opening line and one per evaluation. Raises
+    :class:`~aasl_gym.config.ConfigError` for a keyword the algorithm does not take."""
+    import gymnasium as gym
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv, VecNormalize
 
-        def _on_step(self) -> bool:
-            if self.num_timesteps >= self.next_at:
-                self.next_at += checkpoint_every
-                save_model(self.model, out / "checkpoints" / f"{algo}_{self.num_timesteps}.zip")
-            return True
-
-    class EpisodeMetrics(BaseCallback):
-        """Logs the training episodes' convergence time, success and final error beside the reward
-        (TensorBoard's ``episode/`` scalars), averaged over the episodes that ended in each rollout."""
-
-        def __init__(self):
-            super().__init__()
-            self.ended: list[dict] = []
-
-        def _on_step(self) -> bool:
-            self.ended += [info for info in self.locals.get("infos", []) if "convergence_time" in info]
-            return True
-
-        def _on_rollout_end(self) -> None:
-            if not self.ended:
-                return
-            times = [float(i["convergence_time"]) for i in self.ended]
-            converged = [t for t in times if np.isfinite(t)]
-            self.logger.record("episode/success_1m", float(np.mean([bool(i["success"]["1.0"]) for i in self.ended])))
-            finals = [float(i["final_error"]) for i in self.ended if np.isfinite(float(i["final_error"]))]
-            if finals:
-                self.logger.record("episode/final_error", float(np.median(finals)))
-            if converged:
-                self.logger.record("episode/convergence_time", float(np.mean(converged)))
-            self.ended = []
-
-    return [FixedSeedEvaluation(), AtomicCheckpoint(), EpisodeMetrics()]
+    env_id, env_kwargs = f"aasl_gym:{schedule.env}", {"config": config}
+    vec_cls = SubprocVecEnv if schedule.n_envs > 1 else None
+    envs = make_vec_env(env_id, n_envs=schedule.n_envs, seed=seed, env_kwargs=env_kwargs, vec_env_cls=vec_cls)
+    try:
+        if schedule.normalize_observation or schedule.normalize_reward:
+            envs = VecNormalize(envs, norm_obs=schedule.normalize_observation, norm_reward=schedule.normalize_reward,
+                                gamma=float(hyperparameters.get("gamma", 0.99)))
+        cls = algorithm_class(algo)
+        policy = "MlpLstmPolicy" if algo == "recurrent-ppo" else "MlpPolicy"
+        try:
+            model = cls(policy, envs, seed=seed, verbose=0, tensorboard_log=_tensorboard_log(out), device="auto",
+                        **hyperparameters)
+        except TypeError as exc:
+            raise ConfigError(f"section '{algo}' has a keyword {cls.__name__} does not take ({exc})") from exc
+        model.aasl_env_id = schedule.env  # saved with every checkpoint, so evaluation runs the policy in its env
+        callbacks = make_callbacks(out, algo, lambda: gym.make(env_id, **env_kwargs), schedule.eval_seeds,
+                                   schedule.eval_every, schedule.checkpoint_every, report)
+        report(f"training {algo} on {schedule.env} for {schedule.timesteps:,} steps with {schedule.n_envs} envs -> "
+               f"{out}; evaluating every {schedule.eval_every:,} steps on seeds {schedule.eval_seeds[0]}-"
+               f"{schedule.eval_seeds[-1]}")
+        model.learn(total_timesteps=schedule.timesteps, callback=callbacks, progress_bar=True)
+        return save_model(model, out / "model.zip")
+    finally:
+        envs.close()

@@ -1,10 +1,12 @@
 """evaluate.py end to end on a tiny job: files, results.json schema, and clear errors for bad input."""
 
 import json
+import sys
 
 import pytest
 
 import evaluate
+from aasl_gym.study import runner
 
 
 def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
@@ -80,6 +82,15 @@ def test_bad_flags_are_named(capsys, tmp_path):
     assert "not a Stable-Baselines3 model" in capsys.readouterr().err
 
 
+def test_a_missing_ray_is_a_clear_error(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
+    (tmp_path / "short.yaml").write_text("episode:\n  duration: 10.0\n")
+    flags = ["--policies", "helix", "--motions", "static", "--episodes", "1", "--no-plots", "--measurement", "geometric",
+             "--config", str(tmp_path / "short.yaml"), "--backend", "ray", "--out", str(tmp_path / "out")]
+    assert evaluate.main(flags) == 2
+    assert "--backend ray needs Ray" in capsys.readouterr().err
+
+
 def test_an_interrupted_evaluation_resumes_where_it_stopped(tmp_path, monkeypatch, capsys):
     """Kill a run after its first episode (leaving a torn line): --resume runs only the rest and writes
     the same results as the uninterrupted run; another config is refused by name."""
@@ -96,8 +107,8 @@ def test_an_interrupted_evaluation_resumes_where_it_stopped(tmp_path, monkeypatc
     (cut / "episodes.jsonl").write_text("\n".join(lines[:2]) + "\n" + lines[2][: len(lines[2]) // 2])
 
     ran = []
-    run_episode = evaluate.run_episode
-    monkeypatch.setattr(evaluate, "run_episode", lambda job: ran.append((job.policy, job.seed)) or run_episode(job))
+    run_episode = runner.run_episode
+    monkeypatch.setattr(runner, "run_episode", lambda job: ran.append((job.policy, job.seed)) or run_episode(job))
     assert evaluate.main(flags + ["--out", str(cut), "--resume"]) == 0
     assert len(ran) == 3  # the torn episode ran again, the complete one did not
     episodes = [json.loads((out / "results.json").read_text())["episodes"] for out in (whole, cut)]

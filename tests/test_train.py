@@ -1,5 +1,6 @@
 """train.py end to end on a tiny job, and what it writes loads back with its normalization."""
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -8,6 +9,7 @@ import yaml
 
 import evaluate
 import train
+from aasl_gym.config import to_dict
 from agents.sb3 import load_model, statistics_path
 
 TINY_SCHEDULE = {
@@ -185,6 +187,47 @@ def test_a_recurrent_policy_trains_and_is_evaluated_with_its_memory_carried(tiny
 
 ZOO = Path(__file__).resolve().parent.parent / "configs" / "rl_zoo3"
 TRAINING = Path(__file__).resolve().parent.parent / "configs" / "training.yaml"
+
+
+def test_the_schedule_is_validated_with_the_key_named(tmp_path):
+    """configs/training.yaml loads; a bad schedule is refused with the offending key and what is allowed."""
+    from aasl_gym.config import ConfigError
+    from agents.training import load_training, schedule_from_dict, training_record
+
+    schedule, ppo = load_training(TRAINING, "ppo")
+    raw = yaml.safe_load(TRAINING.read_text())
+    assert to_dict(schedule) == raw["schedule"] and ppo == raw["ppo"]
+    assert schedule.eval_seeds == list(range(900000, 900006))
+    tiny = schedule_from_dict(TINY_SCHEDULE["schedule"])
+    assert tiny.env == "AASL-v0" and tiny.normalize_observation  # an omitted env keeps the default
+    bad = [("timesteps", "many", "schedule.timesteps: must be an integer"),
+           ("n_envs", 0, "schedule.n_envs: must be an integer >= 1"),
+           ("eval_seed", -1, "schedule.eval_seed: must be an integer >= 0"),
+           ("normalize_reward", "yes", "schedule.normalize_reward: must be true or false"),
+           ("env", "AASL-v9", "schedule.env: 'AASL-v9' is not one of"),
+           ("eval_evry", 10, "schedule.eval_evry: unknown key")]
+    for key, value, message in bad:
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            schedule_from_dict({**TINY_SCHEDULE["schedule"], key: value})
+    with pytest.raises(ConfigError, match=r"schedule needs integer .* \(missing: \['n_envs'"):
+        schedule_from_dict({"timesteps": 10})
+    with pytest.raises(ConfigError, match="schedule.timesteps"):
+        tiny.replace(timesteps=0)
+    files = [("ppo: {}", "needs a 'schedule' section"), ("schedule: {}\nppo: 3", "ppo: must be a mapping"),
+             ("schedule: [", "not valid YAML")]
+    for text, message in files:
+        (tmp_path / "h.yaml").write_text(text)
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            load_training(tmp_path / "h.yaml", "ppo")
+    with pytest.raises(ConfigError, match="no file"):
+        load_training(tmp_path / "none.yaml", "ppo")
+    # The record keeps the file's schedule and, beside it, what the command line changed.
+    run = tiny.replace(timesteps=512, env="AASL-Greedy-v0", n_envs=None)
+    assert run.n_envs == tiny.n_envs
+    record = training_record("ppo", 3, tiny, run, {"gamma": 0.9})
+    assert (record["timesteps"], record["env"], record["schedule"]["timesteps"]) == (512, "AASL-Greedy-v0", 256)
+    assert record["schedule"]["env"] == "AASL-v0" and record["n_envs"] == 1
+    assert record["ppo"] == {"gamma": 0.9} and record["seed"] == 3
 
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])

@@ -1,0 +1,62 @@
+"""``episodes.jsonl``, the log a study resumes from: the config on the first line, then one line per
+finished episode, appended and flushed as each one arrives."""
+
+from __future__ import annotations
+
+import json
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from aasl_gym.io import atomic_write_text
+
+
+class LogMismatch(ValueError):
+    """An existing log cannot be resumed: it has no config line, or another config's."""
+
+
+class EpisodeLog:
+    """The log at ``path`` of the episodes run with ``config`` (the env config as plain values, the same
+    for every episode: each line names its episode by the key of :func:`~aasl_gym.study.jobs.episode_key`)."""
+
+    def __init__(self, path: str | Path, config: dict[str, Any]):
+        self.path = Path(path)
+        self.header = {"config": json.loads(json.dumps(config))}  # as it reads back: tuples are lists
+
+    def start(self) -> None:
+        """A new log holding only the config line (replacing any earlier one)."""
+        atomic_write_text(self.path, json.dumps(self.header) + "\n")
+
+    def read(self) -> dict[tuple, dict]:
+        """The rows of an earlier run by episode key (none if there is no log). A torn last line (the run
+        killed mid-write) is skipped: that episode runs again. Raises :class:`LogMismatch` for a log
+        without a config line or with another config than this one."""
+        if not self.path.is_file():
+            return {}
+        lines = self.path.read_text().splitlines()
+        try:
+            written = json.loads(lines[0])["config"]
+        except (IndexError, KeyError, TypeError, json.JSONDecodeError):
+            raise LogMismatch(f"{self.path} does not start with a config line") from None
+        expected = self.header["config"]
+        if written != expected:
+            sections = sorted(k for k in set(written) | set(expected) if written.get(k) != expected.get(k))
+            raise LogMismatch(f"{self.path} was written with another config (sections {sections} differ)")
+        done = {}
+        for line in lines[1:]:
+            try:
+                entry = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            done[tuple(entry["key"])] = entry["row"]
+        return done
+
+    @contextmanager
+    def appending(self) -> Iterator[Callable[[tuple, dict], None]]:
+        """A function that appends one episode's line (its key and row) and flushes it at once."""
+        with open(self.path, "a") as handle:
+            def append(key: tuple, row: dict) -> None:
+                handle.write(json.dumps({"key": key, "row": row}) + "\n")
+                handle.flush()
+
+            yield append

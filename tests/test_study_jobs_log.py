@@ -1,0 +1,66 @@
+"""aasl_gym.study's grid and resume log, without running an episode."""
+
+import json
+
+import pytest
+
+from aasl_gym.config import EnvConfig, to_dict
+from aasl_gym.study.jobs import StudyGrid, build_jobs, effective_config, episode_key
+from aasl_gym.study.log import EpisodeLog, LogMismatch
+
+
+def test_the_grid_runs_every_combination_on_the_same_seeds():
+    grid = StudyGrid(("helix", "spiral"), ("lcmap", "naive"), ("static", "ca"), episodes=3, first_seed=50,
+                     reflections=False, multipath="none", filter_model="matched", trajectories=2)
+    config = EnvConfig()
+    jobs = build_jobs(grid, config)
+    assert len(jobs) == 2 * 2 * 2 * 3
+    assert [(j.motion, j.policy, j.initializer, j.seed) for j in jobs[:4]] == [
+        ("static", "helix", "lcmap", 50), ("static", "helix", "lcmap", 51), ("static", "helix", "lcmap", 52),
+        ("static", "helix", "naive", 50)]
+    for policy in grid.policies:
+        for initializer in grid.initializers:
+            seeds = sorted(j.seed for j in jobs if (j.policy, j.initializer) == (policy, initializer))
+            assert seeds == [50, 50, 51, 51, 52, 52]  # each seed once per motion
+    assert {(j.motion, j.filter_model) for j in jobs} == {("static", "cv"), ("ca", "ca")}
+    # The first initializer's first two seeds are recorded for the trajectory plots, nothing else.
+    assert {(j.initializer, j.seed) for j in jobs if j.record} == {("lcmap", 50), ("lcmap", 51)}
+    assert all(j.measurement == config.measurement.mode for j in jobs)
+    assert jobs[0].config["world"]["reflections"] is False and jobs[0].config["filter"]["multipath"] == "none"
+    assert config.world.reflections is True  # the overrides change the jobs' copy only
+    effective = effective_config(config, jobs[0])
+    assert effective.world.reflections is False and effective.filter.multipath == "none"
+    assert len({episode_key(j) for j in jobs}) == len(jobs)
+
+
+def test_no_trajectories_records_nothing():
+    grid = StudyGrid(("helix",), ("lcmap",), ("cv",), episodes=2, first_seed=0, measurement="geometric")
+    jobs = build_jobs(grid, EnvConfig())
+    assert not any(j.record for j in jobs)
+    assert {j.measurement for j in jobs} == {"geometric"} and {j.filter_model for j in jobs} == {None}
+
+
+def test_the_log_reads_back_what_was_appended_and_skips_a_torn_line(tmp_path):
+    config = to_dict(EnvConfig())
+    log = EpisodeLog(tmp_path / "episodes.jsonl", config)
+    assert log.read() == {}  # no log yet
+    log.start()
+    keys = [("helix", "lcmap", "cv", "signal", seed, None) for seed in (1, 2)]
+    with log.appending() as append:
+        for key in keys:
+            append(key, {"seed": key[4]})
+    assert log.read() == {key: {"seed": key[4]} for key in keys}
+    text = log.path.read_text()
+    log.path.write_text(text[: len(text) - 10])  # killed while writing the second episode
+    assert log.read() == {keys[0]: {"seed": 1}}
+
+
+def test_the_log_refuses_another_config_or_no_header(tmp_path):
+    path = tmp_path / "episodes.jsonl"
+    EpisodeLog(path, to_dict(EnvConfig())).start()
+    other = to_dict(EnvConfig().replace(episode={"duration": 60.0}))
+    with pytest.raises(LogMismatch, match=r"another config \(sections \['episode'\] differ\)"):
+        EpisodeLog(path, other).read()
+    path.write_text(json.dumps({"key": [], "row": {}}) + "\n")
+    with pytest.raises(LogMismatch, match="does not start with a config line"):
+        EpisodeLog(path, other).read()
