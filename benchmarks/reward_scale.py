@@ -28,7 +28,12 @@ MOTIONS = ("static", "cv", "ca", "ctrv")
 
 
 def episode_sums(policy_name: str, motion: str, seed: int) -> dict[str, float]:
-    env = AASLEnv(ROOT / "configs" / "initializer_study.yaml", source_motion=motion, measurement="signal", filter_model=MATCHED_FILTER[motion])
+    env = AASLEnv(
+        ROOT / "configs" / "initializer_study.yaml",
+        source_motion=motion,
+        measurement="signal",
+        filter_model=MATCHED_FILTER[motion],
+    )
     sums = dict.fromkeys(TERMS, 0.0)
 
     def add(_, info):
@@ -47,7 +52,11 @@ def main() -> None:
     args = parser.parse_args()
     columns = {}
     for policy in args.policies:
-        episodes = [episode_sums(policy, motion, seed) for motion in MOTIONS for seed in range(args.seed, args.seed + args.seeds)]
+        episodes = [
+            episode_sums(policy, motion, seed)
+            for motion in MOTIONS
+            for seed in range(args.seed, args.seed + args.seeds)
+        ]
         columns[policy] = {name: np.array([e[name] for e in episodes]) for name in TERMS}
         print(f"{policy}: {len(episodes)} episodes", file=sys.stderr)
     print("| term | " + " | ".join(args.policies) + " |")

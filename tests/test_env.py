@@ -17,9 +17,25 @@ from agents import PatrolPolicy
 
 IDS = list(aasl_gym.ENV_IDS)
 INFO_KEYS = {
-    "time", "source_position", "source_velocity", "receiver_position", "receiver_velocity", "receiver_position_reported",
-    "fixed_position", "estimate_position", "estimate_velocity", "position_error", "position_covariance", "measurement",
-    "measurement_true", "snr_db", "initialized", "converged", "reinitialized", "fim_logdet", "reward_terms",
+    "time",
+    "source_position",
+    "source_velocity",
+    "receiver_position",
+    "receiver_velocity",
+    "receiver_position_reported",
+    "fixed_position",
+    "estimate_position",
+    "estimate_velocity",
+    "position_error",
+    "position_covariance",
+    "measurement",
+    "measurement_true",
+    "snr_db",
+    "initialized",
+    "converged",
+    "reinitialized",
+    "fim_logdet",
+    "reward_terms",
 }
 LAST_KEYS = {"convergence_time", "rmse", "final_error", "success", "time_to_first_estimate", "reinitializations"}
 
@@ -112,11 +128,20 @@ def test_info_contract_over_a_whole_episode():
         done = terminated or truncated
         step += 1
         assert INFO_KEYS <= set(info)
-        for key in ("source_position", "receiver_position", "estimate_position", "measurement", "measurement_true", "position_covariance"):
+        for key in (
+            "source_position",
+            "receiver_position",
+            "estimate_position",
+            "measurement",
+            "measurement_true",
+            "position_covariance",
+        ):
             assert info[key].dtype == np.float64
         assert info["position_covariance"].shape == (3, 3)
         assert reward == pytest.approx(sum(info["reward_terms"].values()))
-        assert info["position_error"] == pytest.approx(np.linalg.norm(info["estimate_position"] - info["source_position"]))
+        assert info["position_error"] == pytest.approx(
+            np.linalg.norm(info["estimate_position"] - info["source_position"])
+        )
         assert LAST_KEYS.isdisjoint(info) or done
         assert obs.shape == (OBSERVATION_SIZE,) and np.all(np.abs(obs) <= 10)
     assert step == 600 and truncated and LAST_KEYS <= set(info)
@@ -172,8 +197,13 @@ def test_rgb_array_render_headless():
 
 
 def test_terminate_on_convergence_option():
-    env = gym.make("AASL-Helix-v0", source_motion="static", reflections=False, multipath="none",
-                   config={"episode": {"terminate_on_convergence": True, "convergence_threshold": 30.0}})
+    env = gym.make(
+        "AASL-Helix-v0",
+        source_motion="static",
+        reflections=False,
+        multipath="none",
+        config={"episode": {"terminate_on_convergence": True, "convergence_threshold": 30.0}},
+    )
     env.reset(seed=0)
     for step in range(600):
         *_, terminated, truncated, info = env.step(np.zeros(3))

@@ -55,6 +55,7 @@ class EpisodeLog:
     def appending(self) -> Iterator[Callable[[tuple, dict], None]]:
         """A function that appends one episode's line (its key and row) and flushes it at once."""
         with open(self.path, "a") as handle:
+
             def append(key: tuple, row: dict) -> None:
                 handle.write(json.dumps({"key": key, "row": row}) + "\n")
                 handle.flush()
