@@ -11,9 +11,10 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import yaml
@@ -276,9 +277,8 @@ class FilterConfig:
     """The UKF: motion model, process noise, measurement model, sigma points, divergence handling."""
 
     motion_model: str = "cv"  # cv, ca, ctrv
-    multipath: str = (
-        "matched"  # matched (phasor with reflections, else none), none, linear, phasor: the filter's RD model
-    )
+    # The filter's RD model: matched (phasor with reflections, else none), none, linear, phasor.
+    multipath: str = "matched"
     acceleration_psd: float = 1e-5  # m^2/s^3, white-acceleration spectral density (cv, ctrv)
     jerk_psd: float = 1e-6  # m^2/s^5, white-jerk spectral density (ca)
     turn_rate_psd: float = 1e-6  # rad^2/s^3 (ctrv)
@@ -298,9 +298,8 @@ class FilterConfig:
     ripple_window: float = 10.0  # s of recent measurements that lattice is weighed on
     recovery_inflation: float = 4.0  # an inconsistent filter re-seeds with its covariance times this
     window_fit: bool = True  # re-seeds refine their best hypotheses by a sliding-window MAP (aasl_gym.window)
-    sheet_check_interval: float = (
-        10.0  # s: after the growing window, test the neighbouring whole-period sheets (0: never)
-    )
+    # s: after the growing window, test the neighbouring whole-period sheets (0: never)
+    sheet_check_interval: float = 10.0
     frame_samples: int = 3  # signal mode, phasor model: times per frame the model is averaged over (1: the centre)
 
     def __post_init__(self) -> None:
@@ -418,7 +417,8 @@ class EpisodeConfig:
 
 @dataclass(frozen=True)
 class PatrolConfig:
-    """Scripted patrol geometry, centred on the fixed hydrophone (helix chosen by the sweep in reports/patrol_sweep/)."""
+    """Scripted patrol geometry, centred on the fixed hydrophone (the helix chosen by the sweep in
+    reports/patrol_sweep/)."""
 
     speed: float = 1.0  # m/s along the path
     radius: float = 15.0  # m, helix / circle radius
@@ -526,7 +526,7 @@ class EnvConfig:
         """Tone wavelength c / f0, m."""
         return self.world.sound_speed / self.source.frequency
 
-    def replace(self, **sections: Mapping[str, Any]) -> "EnvConfig":
+    def replace(self, **sections: Mapping[str, Any]) -> EnvConfig:
         """A copy with some fields changed, e.g. ``replace(filter={"multipath": "none"})``."""
         return from_dict(merge(to_dict(self), sections))
 

@@ -3,18 +3,19 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from aasl_gym import metrics, rewards
-from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_config, to_dict
+from aasl_gym.config import PATROLS, ConfigError, EnvConfig, from_dict, load_config, to_dict
 from aasl_gym.estimator import SourceTracker, TrackerOutput
-from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
+from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.measurement_models import direct_measurement, navigation_covariance
 from aasl_gym.motion import (
     NavigationError,
@@ -177,7 +178,7 @@ class AASLEnv(gym.Env):
     * v0: initial version (signal measurement mode by default, geometric on request).
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}  # noqa: RUF012  (Gymnasium's class attribute)
 
     def __init__(
         self,

@@ -17,7 +17,7 @@ Navigation", 2001 (process-noise models, section 6.2).
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -99,7 +99,7 @@ class MotionModel:
             return x, covariance
         low, high = self.depth_bounds
         outward = 2 * np.sqrt(covariance[5, 5])
-        if not (x[2] > high and x[5] > outward or x[2] < low and x[5] < -outward):
+        if not ((x[2] > high and x[5] > outward) or (x[2] < low and x[5] < -outward)):
             return x, covariance
         flip = np.ones(self.dim)
         flip[self._vertical()] = -1.0

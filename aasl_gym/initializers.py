@@ -36,8 +36,9 @@ Locus in closed form: with a = p_m - p_f and a candidate p = p_m + r u (u a unit
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -91,7 +92,7 @@ class InitialEstimate:
     accelerations: np.ndarray | None = None  # (H, 3) m/s^2, the acceleration each was fitted with (None: none)
 
     @classmethod
-    def single(cls, state: np.ndarray, covariance: np.ndarray, candidates: int = 1) -> "InitialEstimate":
+    def single(cls, state: np.ndarray, covariance: np.ndarray, candidates: int = 1) -> InitialEstimate:
         return cls(state[None], covariance[None], np.zeros(1), candidates)
 
     @property

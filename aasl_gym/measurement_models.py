@@ -33,7 +33,7 @@ class Propagation:
     wavenumber: float  # rad/m, 2 pi f0 / c
 
     @classmethod
-    def from_config(cls, world: WorldConfig, frequency: float) -> "Propagation":
+    def from_config(cls, world: WorldConfig, frequency: float) -> Propagation:
         return cls(
             world.water_depth, world.surface_reflection, world.bed_reflection, 2 * np.pi * frequency / world.sound_speed
         )

@@ -31,7 +31,7 @@ class PatrolGeometry:
     start: np.ndarray  # (3,) m
 
     @classmethod
-    def from_config(cls, config: EnvConfig) -> "PatrolGeometry":
+    def from_config(cls, config: EnvConfig) -> PatrolGeometry:
         """Centred on the fixed hydrophone, from where the robot starts."""
         return cls(
             np.asarray(config.world.fixed_position, dtype=float),

@@ -7,8 +7,8 @@ works headless; ``human`` opens a pyplot window with whatever backend the user h
 from __future__ import annotations
 
 import numpy as np
-from matplotlib.figure import Figure
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
 from aasl_gym.config import EnvConfig

@@ -29,7 +29,6 @@ import numpy as np
 from aasl_gym import geometry
 from aasl_gym.bandpass import band_gain
 
-
 WAVEFORM_KINDS = ("tone", "sweep", "hop")
 
 
@@ -81,7 +80,7 @@ class Waveform:
         sweep_period: float = 0.2,
         hop_dwell: float = 0.01,
         hop_count: int = 256,
-    ) -> "Waveform":
+    ) -> Waveform:
         """A waveform with a random phase (and, for ``hop``, a random sequence of ``hop_count`` frequencies)."""
         hops = tuple(rng.uniform(low, high, hop_count)) if kind == "hop" else ()
         return cls(kind, frequency, low, high, sweep_period, hop_dwell, hops, float(rng.uniform(0.0, 2 * np.pi)))

@@ -29,7 +29,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from aasl_gym import geometry
 from aasl_gym.filters import MotionModel
 from aasl_gym.initializers import Burst, periodic_residual, robust_loss, robust_weights, trajectory_whitener, whiten
 

@@ -16,8 +16,9 @@ from __future__ import annotations
 import logging
 import pickle
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
@@ -162,7 +163,8 @@ class FixedSeedEvaluation(BaseCallback):
         returns, successes, times = [], [], []
         for seed in self.eval_seeds:
             rewards = []
-            info = play_episode(self.env, policy, seed, on_step=lambda reward, _: rewards.append(reward))
+            # The closure runs within this iteration (play_episode calls it), so it sees this episode's list.
+            info = play_episode(self.env, policy, seed, on_step=lambda reward, _: rewards.append(reward))  # noqa: B023
             returns.append(sum(rewards))
             successes.append(bool(info["success"]["1.0"]))
             times.append(float(info["convergence_time"]))

@@ -9,9 +9,10 @@ what is allowed. The keyword arguments are checked by the algorithm that takes t
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import yaml
 
@@ -52,7 +53,7 @@ class Schedule:
     def eval_seeds(self) -> list[int]:
         return list(range(self.eval_seed, self.eval_seed + self.eval_episodes))
 
-    def replace(self, **changes: Any) -> "Schedule":
+    def replace(self, **changes: Any) -> Schedule:
         """A copy with some fields changed (``None`` keeps a field), validated again."""
         return dataclasses.replace(self, **{name: value for name, value in changes.items() if value is not None})
 

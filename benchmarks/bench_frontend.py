@@ -21,10 +21,10 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from aasl_gym import frontend, synthesis  # noqa: E402
-from bench_speed import env_step_rates  # noqa: E402  (run from the repository root as a script)
+from aasl_gym import frontend, synthesis
+from bench_speed import env_step_rates  # run as a script: benchmarks/ is on sys.path
 
 FIXED = np.array([0.0, 0.0, -0.96])
 SOURCE, SOURCE_VELOCITY = np.array([8.0, -6.0, -12.0]), np.array([0.5, 0.2, 0.0])

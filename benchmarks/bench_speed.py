@@ -20,14 +20,14 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as FilterpyUKF  # noqa: E402
+import gymnasium as gym
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as FilterpyUKF
 
-import aasl_gym  # noqa: E402,F401
-from aasl_gym.config import FilterConfig  # noqa: E402
-from aasl_gym.filters import ConstantVelocity, UnscentedKalmanFilter  # noqa: E402
-from aasl_gym.measurement_models import direct_measurement  # noqa: E402
+import aasl_gym  # noqa: F401
+from aasl_gym.config import FilterConfig
+from aasl_gym.filters import ConstantVelocity, UnscentedKalmanFilter
+from aasl_gym.measurement_models import direct_measurement
 
 FIXED = np.array([0.0, 0, -0.96])
 R = np.diag([0.05**2, 0.02**2])

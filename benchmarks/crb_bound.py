@@ -1,4 +1,4 @@
-"""How well could *any* unbiased estimator do? The Cramer-Rao bound along each study episode.
+r"""How well could *any* unbiased estimator do? The Cramer-Rao bound along each study episode.
 
 For every seeded episode of the initializer study (same seeds, same helix, same source), the source's
 trajectory is a function of its motion parameters theta = [p(0), v(0), a (ca) or omega (ctrv), b_p].
@@ -19,7 +19,8 @@ Reported per motion: the share of episodes whose bound on the position error sd 
 ``--target`` metres and stays there to the end, and the median time it first does. An estimator whose
 1 m success rate is near that share is close to what the geometry allows.
 
-    python benchmarks/crb_bound.py --motions static cv ca ctrv --episodes 100 --seed 1000 --config configs/initializer_study.yaml
+    python benchmarks/crb_bound.py --motions static cv ca ctrv --episodes 100 --seed 1000 \
+        --config configs/initializer_study.yaml
     python benchmarks/crb_bound.py --model matched --config configs/default.yaml --seed 710000 --target 1.0
 """
 
@@ -213,7 +214,8 @@ def main(argv: list[str] | None = None) -> None:
                 times.append((last_above + 2) * env.dt if last_above + 1 < len(bound) else np.inf)
             times = np.array(times)
             reached = np.isfinite(times)
-            yield f"| {motion} | {len(times)} | {reached.mean():.0%} | {np.median(times[reached]) if reached.any() else float('nan'):.1f} |"
+            median = np.median(times[reached]) if reached.any() else float("nan")
+            yield f"| {motion} | {len(times)} | {reached.mean():.0%} | {median:.1f} |"
 
     print_table(header, rows(), args.out)
 

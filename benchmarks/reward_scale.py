@@ -20,9 +20,9 @@ sys.path.insert(0, str(ROOT))  # agents/ lives at the repository root
 
 from aasl_gym.env import AASLEnv  # noqa: E402
 from aasl_gym.rewards import TERMS  # noqa: E402
+from aasl_gym.study.jobs import MATCHED_FILTER  # noqa: E402  (source motion -> the filter model matched to it)
 from agents import make_policy  # noqa: E402
 from agents.rollout import play_episode  # noqa: E402
-from aasl_gym.study.jobs import MATCHED_FILTER  # noqa: E402  (source motion -> the filter model matched to it)
 
 MOTIONS = ("static", "cv", "ca", "ctrv")
 

@@ -16,10 +16,9 @@ import itertools
 
 import numpy as np
 
-from crb_bound import episode_bound, print_table
-
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
+from crb_bound import episode_bound, print_table
 
 
 def time_to_bound(env: AASLEnv, seed: int, target: float) -> float:
@@ -38,7 +37,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", default=None, help="markdown file for the table")
     args = parser.parse_args(argv)
     header = [
-        f"| radius (m) | depth period (s) | motion | median time to CRB < {args.target} m (s) | reached within the episode |",
+        f"| radius (m) | depth period (s) | motion | median time to CRB < {args.target} m (s)"
+        " | reached within the episode |",
         "|---|---|---|---|---|",
     ]
 

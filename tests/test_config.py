@@ -80,7 +80,7 @@ def test_bad_values_are_named(data, match):
 def test_bad_yaml_file_names_the_file(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("world: {water_depth: [unclosed\n")
-    with pytest.raises(ConfigError, match="bad.yaml: not valid YAML"):
+    with pytest.raises(ConfigError, match=r"bad\.yaml: not valid YAML"):
         load_config(bad)
     wrong = tmp_path / "wrong.yaml"
     wrong.write_text("filter:\n  multipath: echo\n")

@@ -49,7 +49,7 @@ def test_matches_filterpy_step_for_step(name):
         ours.predict(0.2)
         ours.update(z, R, hx_factory(mobile, mobile_velocity))
         reference.predict()
-        reference.update(z, R=R, hx=lambda x: hx_factory(mobile, mobile_velocity)(x[None])[0])
+        reference.update(z, R=R, hx=lambda x: hx_factory(mobile, mobile_velocity)(x[None])[0])  # noqa: B023  (called here)
         np.testing.assert_allclose(ours.x, reference.x, rtol=0, atol=1e-8)
         np.testing.assert_allclose(ours.P, reference.P, rtol=0, atol=1e-8)
         assert ours.log_likelihood == pytest.approx(reference.log_likelihood, abs=1e-8)

@@ -7,8 +7,8 @@ from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.fisher import position_information_logdet, updated_covariance
 from aasl_gym.measurement_models import expected_noise_covariance, navigation_covariance
-from agents import make_policy
 from aasl_gym.planning import GreedyPlanner, candidate_directions
+from agents import make_policy
 
 
 def test_expected_noise_is_what_the_front_end_tells_the_filter():

@@ -1,5 +1,7 @@
 """Initializers: the locus in closed form, feasible offsets, and LC-MAP on a clean burst."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -133,7 +135,7 @@ def turning_truth(position, velocity, turn_rate, times, substeps=400):
         )
 
     positions, current = [np.asarray(position, float)], np.asarray(position, float)
-    for start, end in zip(times[:-1], times[1:]):
+    for start, end in itertools.pairwise(times):
         fine = np.linspace(start, end, substeps + 1)
         vel = turned(fine)
         current = current + np.sum(np.diff(fine)[:, None] * 0.5 * (vel[1:] + vel[:-1]), axis=0)

@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from aasl_gym.config import ReceiverConfig, SourceConfig, WorldConfig
+from aasl_gym.config import SourceConfig, WorldConfig
 from aasl_gym.motion import (
     Box,
     NavigationError,

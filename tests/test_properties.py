@@ -5,8 +5,7 @@ of RD, the sign conventions of the contract. Derandomized (``conftest.py``): the
 from functools import partial
 
 import numpy as np
-from hypothesis import assume, given
-from hypothesis import strategies as st
+from hypothesis import assume, given, strategies as st
 
 from aasl_gym import geometry
 from aasl_gym.fisher import measurement_jacobian

@@ -1,5 +1,6 @@
 """train.py end to end on a tiny job, and what it writes loads back with its normalization."""
 
+import itertools
 import re
 from pathlib import Path
 
@@ -88,7 +89,7 @@ def test_tiny_ppo_run_writes_a_loadable_model_that_evaluate_runs(tiny, tmp_path,
 
 
 def test_bad_training_input_is_named(tiny, tmp_path, capsys):
-    config, hyper = tiny
+    config, _ = tiny
     assert train.main(["--config", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)]) == 2
     assert "--config" in capsys.readouterr().err
     broken = tmp_path / "broken.yaml"
@@ -218,9 +219,9 @@ def test_the_shipped_default_policy_loads_with_its_statistics_and_env():
 def test_a_recurrent_policy_trains_and_is_evaluated_with_its_memory_carried(tiny, tmp_path):
     """recurrent-ppo (sb3-contrib) runs end to end, and an episode hands the LSTM state returned by each
     step's prediction to the next one (reset only at the episode's start)."""
-    from agents.rollout import play_episode
     from aasl_gym.env import AASLEnv
     from aasl_gym.registration import ENV_IDS
+    from agents.rollout import play_episode
 
     config, hyper = tiny
     schedule = {
@@ -254,7 +255,7 @@ def test_a_recurrent_policy_trains_and_is_evaluated_with_its_memory_carried(tiny
     env = AASLEnv(str(config), patrol=ENV_IDS[policy.env_id])
     play_episode(env, Recording(), seed=0)
     assert calls[0][0] is None and calls[0][1]
-    assert all(not start and state is previous for (_, _, previous), (state, start, _) in zip(calls, calls[1:]))
+    assert all(not start and state is previous for (_, _, previous), (state, start, _) in itertools.pairwise(calls))
     hidden = np.asarray(calls[-1][2][0])
     assert hidden.shape[-1] == 16 and np.any(hidden != 0)  # the memory holds something after an episode
 
@@ -287,7 +288,7 @@ def test_the_schedule_is_validated_with_the_key_named(tmp_path):
             schedule_from_dict({**TINY_SCHEDULE["schedule"], key: value})
     with pytest.raises(ConfigError, match=r"schedule needs integer .* \(missing: \['n_envs'"):
         schedule_from_dict({"timesteps": 10})
-    with pytest.raises(ConfigError, match="schedule.timesteps"):
+    with pytest.raises(ConfigError, match=r"schedule\.timesteps"):
         tiny.replace(timesteps=0)
     files = [
         ("ppo: {}", "needs a 'schedule' section"),

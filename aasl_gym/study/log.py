@@ -4,9 +4,10 @@ finished episode, appended and flushed as each one arrives."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 from aasl_gym.io import atomic_write_text
 

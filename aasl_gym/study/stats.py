@@ -8,7 +8,8 @@ censored statistics count such an episode as the full episode ``duration``.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from scipy import stats
