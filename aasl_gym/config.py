@@ -533,7 +533,7 @@ class EnvConfig:
 
 def to_dict(config: Any) -> dict[str, Any]:
     """The config as plain, YAML-ready Python values."""
-    out = {}
+    out: dict[str, Any] = {}
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         if dataclasses.is_dataclass(value):
@@ -599,7 +599,7 @@ def _build(cls: type, data: Mapping[str, Any], path: str) -> Any:
     kwargs = {}
     for name, value in data.items():
         hint = hints[name]
-        if dataclasses.is_dataclass(hint):
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):  # a section (hints are classes)
             kwargs[name] = _build(hint, value, f"{prefix}{name}")
         else:
             kwargs[name] = _coerce(value, hint, f"{prefix}{name}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -30,6 +30,9 @@ from aasl_gym.observation import OBSERVATION_BOUND, OBSERVATION_SIZE, Observatio
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 from aasl_gym.planning import GreedyPlanner
 from aasl_gym.sensors import make_sensor
+
+if TYPE_CHECKING:
+    from aasl_gym.render import Renderer  # imported when first rendering: matplotlib is slow to import
 
 # Keyword arguments of gym.make / AASLEnv that override one config field each.
 OVERRIDES: dict[str, tuple[str, str]] = {
@@ -217,7 +220,7 @@ class AASLEnv(gym.Env):
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
         self.surface_depth = cfg.receiver.surface_depth if cfg.receiver.kind == "surface" else None
         self.planner = GreedyPlanner(cfg) if patrol == "greedy" else None
-        self._renderer = None
+        self._renderer: Renderer | None = None
         self._time = 0.0
 
     # -- episode -------------------------------------------------------------------------------

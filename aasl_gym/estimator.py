@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -224,6 +225,7 @@ class SourceTracker:
         noise = np.zeros((len(sigmas), 2, 2))
         coarse = np.zeros(len(sigmas), dtype=bool)
         if self.ripple:
+            assert self.correction_period is not None  # the ripple is the phasor model's, which has one
             direct = direct_measurement(position, velocity, mobile, mobile_velocity, self.fixed)
             correction = z - direct
             centre = correction[:, :1]
@@ -362,7 +364,9 @@ class SourceTracker:
         burst = self._burst(min(length or self._window_length(time), len(self.history)))
         fresh = self._lcmap_at(time)(burst, rng)
         running = [(h.ukf.x, h.ukf.P * inflation) for h in self.bank]
-        candidates = running + [self._embed(fresh, i) for i in range(len(fresh.states))]
+        candidates: list[tuple[np.ndarray, np.ndarray]] = running + [
+            self._embed(fresh, i) for i in range(len(fresh.states))
+        ]
         states = np.array([x for x, _ in candidates])
         base = states[:, self.model.base_index]
         chi_square = self._window_chi_square(burst, states)
@@ -409,6 +413,7 @@ class SourceTracker:
         """``x`` moved onto the two neighbouring whole-period sheets (2, n): b_p -+ one wavelength, and the
         position moved along the direct RD's gradient (Newton steps at the latest receiver position) so
         that the predicted RD stays what it was."""
+        assert self.wavelength is not None  # only when the sheets are checkable: a tone
         mobile = self.history[-1][2]
         neighbours = np.repeat(x[None], 2, axis=0)
         for neighbour, periods in zip(neighbours, (1.0, -1.0)):
@@ -451,7 +456,7 @@ class SourceTracker:
         return duplicate
 
     def _fit_window(
-        self, length: int, states: np.ndarray, resolved_starts: np.ndarray | None = None
+        self, length: int, states: np.ndarray, resolved_starts: Sequence[int] | np.ndarray | None = None
     ) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
         """The sliding-window MAP (:func:`aasl_gym.window.fit_window`) of the last ``length`` samples
         from each of ``states`` (H, n): (start index, state, covariance, log weight, resolved), best first.
@@ -548,7 +553,7 @@ class SourceTracker:
         if not predicted:
             self.bank = []
             return
-        sigmas = np.stack([h.ukf.sigmas_f for h in predicted])
+        sigmas = np.stack([h.ukf.sigmas_f for h in predicted])  # type: ignore[misc]  # set by predict()
         unresolved = [self.ripple and not h.resolved for h in predicted]
         # Only a hypothesis that has yet to resolve the ripple needs its position sd (an eigen-decomposition).
         position_sd = np.array([self._position_sd(h.ukf.P) if u else 0.0 for h, u in zip(predicted, unresolved)])
@@ -560,7 +565,8 @@ class SourceTracker:
             ukf = hypothesis.ukf
             try:
                 # h was evaluated for the whole bank at once: this h hands back the hypothesis's share.
-                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.residual)
+                # (mypy cannot type a lambda whose default binds the loop's value.)
+                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.residual)  # type: ignore[misc]
             except np.linalg.LinAlgError:
                 continue
             hypothesis.log_weight += ukf.log_likelihood

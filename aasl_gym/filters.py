@@ -81,6 +81,7 @@ class MotionModel:
     def _fold(self, states: np.ndarray) -> np.ndarray:
         """Free-motion states (..., n) folded into the depth bounds (in place): z mirrored, the vertical
         velocity and acceleration negated on every odd fold."""
+        assert self.depth_bounds is not None  # fold_trajectories needs them
         low, high = self.depth_bounds
         span = high - low
         phase = np.mod(states[..., 2] - low, 2 * span)

@@ -303,6 +303,7 @@ class FrontEnd:
         channels' measured SNRs (linear) and whether the source was heard in it (:meth:`heard`)."""
         if self.waveform is None:
             self.reset(rng)
+        assert self.waveform is not None  # reset() drew it
         paths = path_sources(
             source, source_velocity, self.reflections, self.water_depth, self.surface_reflection, self.bed_reflection
         )
@@ -334,6 +335,7 @@ class FrontEnd:
         ``detection_snr_db``. (A sweep or hop spreads over the band; only clipping is detected for them.)"""
         if saturated(channel.mobile) or saturated(channel.fixed):
             return False
+        assert self.waveform is not None  # called on a frame measure() synthesized
         if self.waveform.kind != "tone":
             return True
         band = tuple(np.asarray(self.waveform.band) - self.waveform.carrier)
@@ -346,6 +348,7 @@ class FrontEnd:
         An envelope's power is twice the real signal's; the filtered noise keeps the share of the band's
         power that the filter's gain passes (its noise bandwidth over the band).
         """
+        assert self.waveform is not None  # called on a frame measure() synthesized
         band = self.waveform.band
         noise = 10 ** (self.noise_level_db / 10)
         filtered_noise = noise * noise_bandwidth(band) / (band[1] - band[0])

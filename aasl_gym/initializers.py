@@ -117,7 +117,7 @@ def fibonacci_directions(count: int) -> np.ndarray:
     return np.stack([radial * np.cos(azimuth), radial * np.sin(azimuth), z], axis=-1)
 
 
-def feasible_offsets(first_rd: float, baseline: float, wavelength: float | None) -> np.ndarray:
+def feasible_offsets(first_rd: float, baseline: float | np.floating, wavelength: float | None) -> np.ndarray:
     """Whole-period biases b_p = k * wavelength with |first_rd - b_p| <= baseline (m)."""
     if wavelength is None:
         return np.zeros(1)
@@ -580,12 +580,12 @@ class LCMAPInitializer:
         )
         if ok.any():
             refined_score = np.where(ok, refined_score, np.inf)
-        order = [i for i in np.argsort(refined_score, kind="stable") if np.isfinite(refined_score[i])] or [
+        ranked = [i for i in np.argsort(refined_score, kind="stable") if np.isfinite(refined_score[i])] or [
             int(np.argmin(refined_score))
         ]
         kept = np.array(
             distinct_hypotheses(
-                order, refined_p, biases, c.hypotheses, self.separation, burst.wavelength, sheets_first=True
+                ranked, refined_p, biases, c.hypotheses, self.separation, burst.wavelength, sheets_first=True
             )
         )
         states = np.concatenate(
@@ -623,7 +623,7 @@ def distinct_hypotheses(
     ``sheets_first`` the best of every sheet comes before any sheet's second."""
     tolerance = 0.5 * wavelength if wavelength else np.inf
 
-    def near(i: int, j: int) -> bool:
+    def near(i: int, j: int) -> bool | np.bool_:
         return abs(sheets[i] - sheets[j]) < tolerance and np.linalg.norm(positions[i] - positions[j]) < separation
 
     kept: list[int] = []
@@ -642,7 +642,11 @@ def make_initializer(name: str, config: InitializerConfig, region: Box, motion: 
     """The initializer called ``name``: lcmap (fitting the filter's ``motion`` model), naive, random or tdoa-ls."""
     if name == "lcmap":
         return LCMAPInitializer(config, region, motion)
-    simple = {"naive": NaiveInitializer, "random": RandomInitializer, "tdoa-ls": TdoaLeastSquaresInitializer}
+    simple: dict[str, Callable[[InitializerConfig], Initializer]] = {
+        "naive": NaiveInitializer,
+        "random": RandomInitializer,
+        "tdoa-ls": TdoaLeastSquaresInitializer,
+    }
     if name not in simple:
         raise ValueError(f"unknown initializer {name!r}; allowed: ['lcmap', 'naive', 'random', 'tdoa-ls']")
     return simple[name](config)

@@ -93,7 +93,7 @@ def sample_source(rng: np.random.Generator, kind: str, source: SourceConfig, wor
 
 
 def coordinated_turn_displacement(
-    velocity: np.ndarray, turn_rate: np.ndarray | float, dt: float
+    velocity: np.ndarray, turn_rate: np.ndarray | float, dt: np.ndarray | float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact displacement (m) and final velocity (m/s) over ``dt`` of a horizontal turn at ``turn_rate``.
 
@@ -211,6 +211,7 @@ class NavigationError:
     ) -> tuple[np.ndarray, np.ndarray]:
         if self.drift is None:
             self.reset()
+        assert self.drift is not None  # reset() set it
         if self.drift_sd > 0:
             self.drift = self.drift + rng.normal(0.0, self.drift_sd * np.sqrt(dt), 3)
         noise = rng.normal(0.0, 1.0, 6)

@@ -175,8 +175,9 @@ class SignalSensor:
         range_rate_bias: float = 0.0,
     ) -> np.ndarray:
         fault = self.fault if self.fault.active(time) else None
-        corrupted = fault is not None and fault.kind != "dropped"  # a dropped frame is synthesized intact
-        corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level) if corrupted else None
+        corrupt = None
+        if fault is not None and fault.kind != "dropped":  # a dropped frame is synthesized intact
+            corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level)
         result, self._snr, heard = self.front_end.measure(
             rng, time, source_position, source_velocity, mobile, mobile_velocity, fixed, corrupt
         )

@@ -272,6 +272,7 @@ def synthesize(
     if fault and fault.kind == "silent":
         channels[corrupted] = 0.0
     if noise_level_db is not None:
+        assert rng is not None, "noise needs an rng"
         sd = noise_sd(noise_level_db, waveform.band, rate, complex_samples=baseband)
         if baseband:
             # White noise's DFT bins are independent complex Gaussians: draw only the bins the band-pass

@@ -261,7 +261,8 @@ def train(
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import SubprocVecEnv, VecNormalize
 
-    env_id, env_kwargs = f"aasl_gym:{schedule.env}", {"config": config}
+    env_id = f"aasl_gym:{schedule.env}"
+    env_kwargs: dict[str, Any] = {"config": config}
     vec_cls = SubprocVecEnv if schedule.n_envs > 1 else None
     envs = make_vec_env(env_id, n_envs=schedule.n_envs, seed=seed, env_kwargs=env_kwargs, vec_env_cls=vec_cls)
     try:

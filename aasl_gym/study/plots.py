@@ -108,7 +108,9 @@ def write_trajectory_plots(out: Path, trajectories: list[Trajectory], config: En
     for motion in sorted({t[1] for t in trajectories}, key=_motion_order):
         episodes = sorted((t for t in trajectories if t[1] == motion), key=lambda t: (t[0], t[2]))
         figure = Figure(figsize=(10, 4.2 * len(episodes)))
-        for panel, (policy, _, seed, paths) in zip(np.atleast_1d(figure.subfigures(len(episodes), 1)), episodes):
+        # subfigures() returns a lone SubFigure for one episode; its stubs do not let atleast_1d take it.
+        panels = np.atleast_1d(figure.subfigures(len(episodes), 1))  # type: ignore[arg-type]
+        for panel, (policy, _, seed, paths) in zip(panels, episodes):
             draw_episode(
                 panel,
                 paths,

@@ -91,11 +91,13 @@ def paired_comparisons(rows: list[Row], duration: float, field: str, baseline: s
 
 def _compare_pairs(pairs: list[tuple[Row, Row]], duration: float) -> Row:
     """The comparison of each pair's first row against its second (the baseline's)."""
-    both = [
-        (a["convergence_time"], b["convergence_time"])
-        for a, b in pairs
-        if a["convergence_time"] is not None and b["convergence_time"] is not None
-    ]
+    both = np.array(
+        [
+            (a["convergence_time"], b["convergence_time"])
+            for a, b in pairs
+            if a["convergence_time"] is not None and b["convergence_time"] is not None
+        ]
+    ).reshape(-1, 2)
     censored = np.array(
         [
             [
@@ -106,7 +108,6 @@ def _compare_pairs(pairs: list[tuple[Row, Row]], duration: float) -> Row:
         ]
     )
     diff_mean, diff_ci = mean_ci95(censored[:, 0] - censored[:, 1])
-    both = np.array(both).reshape(-1, 2)
     ratio_both = float(both[:, 0].mean() / both[:, 1].mean()) if len(both) and both[:, 1].mean() > 0 else None
     success = np.mean([a["success"]["1.0"] for a, _ in pairs]) - np.mean([b["success"]["1.0"] for _, b in pairs])
     return {
