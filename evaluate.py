@@ -19,8 +19,16 @@ import sys
 from pathlib import Path
 
 from aasl_gym.config import INITIALIZERS, MEASUREMENT_MODES, MULTIPATH_MODELS, ConfigError, EnvConfig, load_config
-from aasl_gym.study.jobs import (FILTER_CHOICES, MOTIONS, Job, StudyGrid, build_jobs, check_overrides, effective_config,
-                                 episode_key)
+from aasl_gym.study.jobs import (
+    FILTER_CHOICES,
+    MOTIONS,
+    Job,
+    StudyGrid,
+    build_jobs,
+    check_overrides,
+    effective_config,
+    episode_key,
+)
 from aasl_gym.study.log import EpisodeLog, LogMismatch
 from aasl_gym.study.plots import pop_trajectories, write_plots, write_trajectory_plots
 from aasl_gym.study.report import console_table, write_report, write_results
@@ -34,8 +42,12 @@ ROOT = Path(__file__).resolve().parent
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add = parser.add_argument
-    add("--policies", nargs="+", default=["helix", "spiral", "greedy"],
-        help=f"{' '.join(SCRIPTED_POLICIES)}, or ALGO:PATH")
+    add(
+        "--policies",
+        nargs="+",
+        default=["helix", "spiral", "greedy"],
+        help=f"{' '.join(SCRIPTED_POLICIES)}, or ALGO:PATH",
+    )
     add("--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=MOTIONS)
     add("--initializers", nargs="+", default=["lcmap"], choices=INITIALIZERS)
     add("--episodes", type=int, default=10, help="episodes per combination (seeds S .. S+N-1)")
@@ -43,19 +55,30 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("--measurement", choices=MEASUREMENT_MODES, default=None, help="default: the config's")
     add("--reflections", choices=("on", "off"), default=None, help="surface/bed paths in the world")
     add("--multipath", choices=MULTIPATH_MODELS, default=None, help="the filter's multipath model")
-    add("--filter-model", choices=FILTER_CHOICES, default=None,
-        help="filter motion model; 'matched' uses cv for static/cv, ca for ca, ctrv for ctrv")
+    add(
+        "--filter-model",
+        choices=FILTER_CHOICES,
+        default=None,
+        help="filter motion model; 'matched' uses cv for static/cv, ca for ca, ctrv for ctrv",
+    )
     add("--config", type=Path, default=None, help="YAML config (default: configs/default.yaml)")
     add("--workers", type=int, default=None, help="processes (default: every core this process may use)")
-    add("--backend", choices=BACKENDS, default="process",
-        help="process: a local process pool; ray: Ray tasks (pip install -e '.[distributed]')")
+    add(
+        "--backend",
+        choices=BACKENDS,
+        default="process",
+        help="process: a local process pool; ray: Ray tasks (pip install -e '.[distributed]')",
+    )
     add("--ray-address", default=None, help="a Ray cluster to join (default: start Ray locally with --workers CPUs)")
     add("--out", type=Path, default=Path("results/evaluation"))
     add("--no-plots", action="store_true")
     add("--trajectories", type=int, default=2, help="episodes per policy and motion drawn in top and depth views")
-    add("--resume", action="store_true",
+    add(
+        "--resume",
+        action="store_true",
         help="reuse the episodes already in OUT/episodes.jsonl (an interrupted run with the same config; "
-             "models are trusted to be unchanged at their paths)")
+        "models are trusted to be unchanged at their paths)",
+    )
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
@@ -79,9 +102,18 @@ def default_config_path() -> Path:
 
 def study_grid(args: argparse.Namespace) -> StudyGrid:
     reflections = None if args.reflections is None else args.reflections == "on"
-    return StudyGrid(tuple(args.policies), tuple(args.initializers), tuple(args.motions), args.episodes, args.seed,
-                     measurement=args.measurement, reflections=reflections, multipath=args.multipath,
-                     filter_model=args.filter_model, trajectories=0 if args.no_plots else args.trajectories)
+    return StudyGrid(
+        tuple(args.policies),
+        tuple(args.initializers),
+        tuple(args.motions),
+        args.episodes,
+        args.seed,
+        measurement=args.measurement,
+        reflections=reflections,
+        multipath=args.multipath,
+        filter_model=args.filter_model,
+        trajectories=0 if args.no_plots else args.trajectories,
+    )
 
 
 def prepare(args: argparse.Namespace) -> tuple[EnvConfig, list[Job]]:
@@ -111,15 +143,18 @@ def run(args: argparse.Namespace, jobs: list[Job]) -> list[dict]:
     if not done:
         log.start()
     reused = sum(episode_key(job) in done for job in jobs)
-    print(f"{len(jobs)} episodes: {len(args.policies)} policies x {len(args.initializers)} initializers x "
-          f"{len(args.motions)} motions x {args.episodes} seeds" + (f" ({reused} from {log.path})" if done else ""))
+    print(
+        f"{len(jobs)} episodes: {len(args.policies)} policies x {len(args.initializers)} initializers x "
+        f"{len(args.motions)} motions x {args.episodes} seeds" + (f" ({reused} from {log.path})" if done else "")
+    )
     backend = Backend(args.backend, args.workers, args.ray_address, code_root=ROOT)
     with tqdm(total=len(jobs), initial=reused, desc="episodes", unit="ep") as progress:
         return run_jobs(jobs, done, log, backend, on_row=progress.update)
 
 
-def write_outputs(args: argparse.Namespace, command: str, config: EnvConfig, jobs: list[Job],
-                  rows: list[dict]) -> tuple[list[dict], list[str]]:
+def write_outputs(
+    args: argparse.Namespace, command: str, config: EnvConfig, jobs: list[Job], rows: list[dict]
+) -> tuple[list[dict], list[str]]:
     """The plots, results.json and report.md; returns the summary and the plots' names."""
     trajectories = pop_trajectories(rows)
     summary = summarize(rows, config.episode.duration)
@@ -151,8 +186,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     summary, plots = write_outputs(args, command, config, jobs, rows)
     print("\n" + "\n".join(console_table(summary)))
-    print(f"\nwrote {args.out / 'report.md'}, {args.out / 'results.json'}"
-          + (f" and {len(plots)} plots" if plots else ""))
+    print(
+        f"\nwrote {args.out / 'report.md'}, {args.out / 'results.json'}" + (f" and {len(plots)} plots" if plots else "")
+    )
     return 0
 
 

@@ -30,8 +30,9 @@ ROOT = Path(__file__).resolve().parent
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=ALGORITHMS, default="ppo")
-    parser.add_argument("--env", choices=sorted(ENV_IDS), default=None,
-                        help="default: schedule.env in --hyperparameters")
+    parser.add_argument(
+        "--env", choices=sorted(ENV_IDS), default=None, help="default: schedule.env in --hyperparameters"
+    )
     parser.add_argument("--config", type=Path, default=ROOT / "configs" / "default.yaml", help="env config (YAML)")
     parser.add_argument("--hyperparameters", type=Path, default=ROOT / "configs" / "training.yaml")
     parser.add_argument("--timesteps", type=int, default=None, help="default: the schedule in --hyperparameters")
@@ -65,8 +66,9 @@ def main(argv=None) -> int:
     from agents.sb3 import train  # Stable-Baselines3 and torch: only once the input is known to be good
 
     try:
-        model_path = train(args.algo, config, run, hyperparameters, args.seed, out,
-                           report=lambda line: print(line, flush=True))
+        model_path = train(
+            args.algo, config, run, hyperparameters, args.seed, out, report=lambda line: print(line, flush=True)
+        )
     except ConfigError as exc:
         print(f"error: --hyperparameters: {exc}", file=sys.stderr)
         return 2

@@ -10,5 +10,5 @@ from aasl_gym.registration import ENV_IDS, register_envs
 
 register_envs()
 
-__all__ = ["AASLEnv", "ConfigError", "EnvConfig", "ENV_IDS", "from_dict", "load_config", "save_config", "to_dict"]
+__all__ = ["ENV_IDS", "AASLEnv", "ConfigError", "EnvConfig", "from_dict", "load_config", "save_config", "to_dict"]
 __version__ = "0.1.0"

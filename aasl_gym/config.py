@@ -11,9 +11,10 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import yaml
@@ -66,7 +67,9 @@ def _check_finite(section: Any, name: str) -> None:
 def _ordered_pair(pair: tuple[float, float], path: str, minimum: float = 0.0) -> None:
     _check(len(pair) == 2, path, f"must be [low, high], got {list(pair)}")
     low, high = pair
-    _check(minimum <= low <= high and math.isfinite(high), path, f"must satisfy {minimum} <= low <= high, got {list(pair)}")
+    _check(
+        minimum <= low <= high and math.isfinite(high), path, f"must satisfy {minimum} <= low <= high, got {list(pair)}"
+    )
 
 
 @dataclass(frozen=True)
@@ -88,8 +91,16 @@ class WorldConfig:
         _positive(self.region_radius, "world.region_radius")
         _check(len(self.fixed_position) == 3, "world.fixed_position", "must be [x, y, z] in metres")
         z = self.fixed_position[2]
-        _check(-self.water_depth < z < 0, "world.fixed_position", f"z = {z} m is outside the water column (-{self.water_depth}, 0)")
-        _check(-1 <= self.surface_reflection <= 0, "world.surface_reflection", "must lie in [-1, 0] (pressure-release surface)")
+        _check(
+            -self.water_depth < z < 0,
+            "world.fixed_position",
+            f"z = {z} m is outside the water column (-{self.water_depth}, 0)",
+        )
+        _check(
+            -1 <= self.surface_reflection <= 0,
+            "world.surface_reflection",
+            "must lie in [-1, 0] (pressure-release surface)",
+        )
         _check(0 <= self.bed_reflection <= 1, "world.bed_reflection", "must lie in [0, 1]")
 
 
@@ -118,7 +129,11 @@ class SourceConfig:
         _positive(self.initial_radius, "source.initial_radius")
         _ordered_pair(self.speed_range, "source.speed_range")
         _positive(self.max_speed, "source.max_speed")
-        _check(self.speed_range[1] <= self.max_speed, "source.speed_range", f"upper end must not exceed source.max_speed = {self.max_speed}")
+        _check(
+            self.speed_range[1] <= self.max_speed,
+            "source.speed_range",
+            f"upper end must not exceed source.max_speed = {self.max_speed}",
+        )
         _ordered_pair(self.acceleration_range, "source.acceleration_range")
         _ordered_pair(self.turn_rate_range, "source.turn_rate_range")
         _non_negative(self.max_vertical_speed, "source.max_vertical_speed")
@@ -198,13 +213,31 @@ class SignalConfig:
 
     def __post_init__(self) -> None:
         _choice(self.path, SIGNAL_PATHS, "signal.path")
-        _check(math.isfinite(self.detection_snr_db), "signal.detection_snr_db", f"must be finite, got {self.detection_snr_db}")
-        for name in ("frame_duration", "sample_rate", "envelope_rate", "min_range_difference_sd", "min_range_rate_difference_sd"):
+        _check(
+            math.isfinite(self.detection_snr_db),
+            "signal.detection_snr_db",
+            f"must be finite, got {self.detection_snr_db}",
+        )
+        for name in (
+            "frame_duration",
+            "sample_rate",
+            "envelope_rate",
+            "min_range_difference_sd",
+            "min_range_rate_difference_sd",
+        ):
             _positive(getattr(self, name), f"signal.{name}")
         _non_negative(self.guard, "signal.guard")
-        _check(isinstance(self.windows, int) and self.windows >= 2, "signal.windows", f"must be an integer >= 2, got {self.windows!r}")
+        _check(
+            isinstance(self.windows, int) and self.windows >= 2,
+            "signal.windows",
+            f"must be an integer >= 2, got {self.windows!r}",
+        )
         _check(self.sd_inflation >= 1, "signal.sd_inflation", "must be >= 1")
-        _check(self.envelope_rate <= self.sample_rate, "signal.envelope_rate", f"must not exceed signal.sample_rate = {self.sample_rate}")
+        _check(
+            self.envelope_rate <= self.sample_rate,
+            "signal.envelope_rate",
+            f"must not exceed signal.sample_rate = {self.sample_rate}",
+        )
 
 
 @dataclass(frozen=True)
@@ -244,7 +277,8 @@ class FilterConfig:
     """The UKF: motion model, process noise, measurement model, sigma points, divergence handling."""
 
     motion_model: str = "cv"  # cv, ca, ctrv
-    multipath: str = "matched"  # matched (phasor with reflections, else none), none, linear, phasor: the filter's RD model
+    # The filter's RD model: matched (phasor with reflections, else none), none, linear, phasor.
+    multipath: str = "matched"
     acceleration_psd: float = 1e-5  # m^2/s^3, white-acceleration spectral density (cv, ctrv)
     jerk_psd: float = 1e-6  # m^2/s^5, white-jerk spectral density (ca)
     turn_rate_psd: float = 1e-6  # rad^2/s^3 (ctrv)
@@ -264,7 +298,8 @@ class FilterConfig:
     ripple_window: float = 10.0  # s of recent measurements that lattice is weighed on
     recovery_inflation: float = 4.0  # an inconsistent filter re-seeds with its covariance times this
     window_fit: bool = True  # re-seeds refine their best hypotheses by a sliding-window MAP (aasl_gym.window)
-    sheet_check_interval: float = 10.0  # s: after the growing window, test the neighbouring whole-period sheets (0: never)
+    # s: after the growing window, test the neighbouring whole-period sheets (0: never)
+    sheet_check_interval: float = 10.0
     frame_samples: int = 3  # signal mode, phasor model: times per frame the model is averaged over (1: the centre)
 
     def __post_init__(self) -> None:
@@ -283,11 +318,18 @@ class FilterConfig:
         _positive(self.ripple_lock_sd, "filter.ripple_lock_sd")
         _positive(self.ripple_split_sd, "filter.ripple_split_sd")
         _positive(self.ripple_window, "filter.ripple_window")
-        _check(isinstance(self.window_fit, bool), "filter.window_fit", f"must be true or false, got {self.window_fit!r}")
+        _check(
+            isinstance(self.window_fit, bool), "filter.window_fit", f"must be true or false, got {self.window_fit!r}"
+        )
         _non_negative(self.sheet_check_interval, "filter.sheet_check_interval")
-        _check(isinstance(self.frame_samples, int) and self.frame_samples >= 1, "filter.frame_samples",
-               f"must be an integer >= 1, got {self.frame_samples!r}")
-        _check(self.recovery_inflation >= 1, "filter.recovery_inflation", f"must be >= 1, got {self.recovery_inflation}")
+        _check(
+            isinstance(self.frame_samples, int) and self.frame_samples >= 1,
+            "filter.frame_samples",
+            f"must be an integer >= 1, got {self.frame_samples!r}",
+        )
+        _check(
+            self.recovery_inflation >= 1, "filter.recovery_inflation", f"must be >= 1, got {self.recovery_inflation}"
+        )
 
 
 @dataclass(frozen=True)
@@ -318,19 +360,30 @@ class InitializerConfig:
         _check(math.isfinite(self.information_weight), "initializer.information_weight", "must be finite")
         _non_negative(self.reseed_interval, "initializer.reseed_interval")
         _non_negative(self.reseed_until, "initializer.reseed_until")
-        _check(isinstance(self.hypotheses, int) and self.hypotheses >= 1, "initializer.hypotheses", f"must be an integer >= 1, got {self.hypotheses!r}")
+        _check(
+            isinstance(self.hypotheses, int) and self.hypotheses >= 1,
+            "initializer.hypotheses",
+            f"must be an integer >= 1, got {self.hypotheses!r}",
+        )
         for name in ("velocity_prior_sd", "max_source_speed", "position_sd", "range_bias_sd", "rate_bias_sd"):
             _positive(getattr(self, name), f"initializer.{name}")
         _check(self.covariance_inflation >= 1, "initializer.covariance_inflation", "must be >= 1")
         _positive(self.max_turn_rate, "initializer.max_turn_rate")
         _positive(self.acceleration_prior_sd, "initializer.acceleration_prior_sd")
-        _check(isinstance(self.turn_rate_steps, int) and self.turn_rate_steps >= 1, "initializer.turn_rate_steps",
-               f"must be an integer >= 1, got {self.turn_rate_steps!r}")
+        _check(
+            isinstance(self.turn_rate_steps, int) and self.turn_rate_steps >= 1,
+            "initializer.turn_rate_steps",
+            f"must be an integer >= 1, got {self.turn_rate_steps!r}",
+        )
 
     @property
     def turn_rates(self) -> np.ndarray:
         """The turn rates (rad/s) LC-MAP tries with a ctrv filter."""
-        return np.linspace(-self.max_turn_rate, self.max_turn_rate, self.turn_rate_steps) if self.turn_rate_steps > 1 else np.zeros(1)
+        return (
+            np.linspace(-self.max_turn_rate, self.max_turn_rate, self.turn_rate_steps)
+            if self.turn_rate_steps > 1
+            else np.zeros(1)
+        )
 
 
 @dataclass(frozen=True)
@@ -364,7 +417,8 @@ class EpisodeConfig:
 
 @dataclass(frozen=True)
 class PatrolConfig:
-    """Scripted patrol geometry, centred on the fixed hydrophone (helix chosen by the sweep in reports/patrol_sweep/)."""
+    """Scripted patrol geometry, centred on the fixed hydrophone (the helix chosen by the sweep in
+    reports/patrol_sweep/)."""
 
     speed: float = 1.0  # m/s along the path
     radius: float = 15.0  # m, helix / circle radius
@@ -381,14 +435,24 @@ class PatrolConfig:
 
     def __post_init__(self) -> None:
         for name in (
-            "speed", "radius", "depth_period", "spiral_radius_max", "spiral_period",
-            "lawnmower_width", "lawnmower_spacing", "position_gain",
+            "speed",
+            "radius",
+            "depth_period",
+            "spiral_radius_max",
+            "spiral_period",
+            "lawnmower_width",
+            "lawnmower_spacing",
+            "position_gain",
         ):
             _positive(getattr(self, name), f"patrol.{name}")
         _non_negative(self.depth_min, "patrol.depth_min")
         _check(self.depth_min <= self.depth_max, "patrol.depth_max", "must be >= patrol.depth_min")
         _non_negative(self.spiral_radius_min, "patrol.spiral_radius_min")
-        _check(self.spiral_radius_min < self.spiral_radius_max, "patrol.spiral_radius_max", "must be > patrol.spiral_radius_min")
+        _check(
+            self.spiral_radius_min < self.spiral_radius_max,
+            "patrol.spiral_radius_max",
+            "must be > patrol.spiral_radius_min",
+        )
         _non_negative(self.spiral_depth, "patrol.spiral_depth")
 
 
@@ -411,17 +475,34 @@ class EnvConfig:
             _check_finite(getattr(self, section.name), section.name)
         start = self.receiver.start_position
         depth = self.world.water_depth
-        _check(-depth + self.receiver.bed_clearance <= start[2] <= -self.receiver.min_depth,
-               "receiver.start_position", f"z = {start[2]} m must lie between -{depth} + bed_clearance and -min_depth")
-        _check(self.patrol.depth_max < depth - self.receiver.bed_clearance, "patrol.depth_max",
-               f"must be shallower than the bed ({depth} m) less receiver.bed_clearance")
-        _check(self.source.initial_radius <= self.world.region_radius, "source.initial_radius",
-               f"must not exceed world.region_radius = {self.world.region_radius}")
-        _check(2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source")
-        _check(self.signal.frame_duration <= 1.0 / self.measurement.rate + 1e-12, "signal.frame_duration",
-               f"must not exceed one step (1 / measurement.rate = {1.0 / self.measurement.rate} s)")
-        _check(self.fault.kind in ("none", "dropped") or self.measurement.mode == "signal", "fault.kind",
-               f"{self.fault.kind!r} corrupts a synthesized frame: it needs measurement.mode signal")
+        _check(
+            -depth + self.receiver.bed_clearance <= start[2] <= -self.receiver.min_depth,
+            "receiver.start_position",
+            f"z = {start[2]} m must lie between -{depth} + bed_clearance and -min_depth",
+        )
+        _check(
+            self.patrol.depth_max < depth - self.receiver.bed_clearance,
+            "patrol.depth_max",
+            f"must be shallower than the bed ({depth} m) less receiver.bed_clearance",
+        )
+        _check(
+            self.source.initial_radius <= self.world.region_radius,
+            "source.initial_radius",
+            f"must not exceed world.region_radius = {self.world.region_radius}",
+        )
+        _check(
+            2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source"
+        )
+        _check(
+            self.signal.frame_duration <= 1.0 / self.measurement.rate + 1e-12,
+            "signal.frame_duration",
+            f"must not exceed one step (1 / measurement.rate = {1.0 / self.measurement.rate} s)",
+        )
+        _check(
+            self.fault.kind in ("none", "dropped") or self.measurement.mode == "signal",
+            "fault.kind",
+            f"{self.fault.kind!r} corrupts a synthesized frame: it needs measurement.mode signal",
+        )
 
     @property
     def filter_multipath(self) -> str:
@@ -445,14 +526,14 @@ class EnvConfig:
         """Tone wavelength c / f0, m."""
         return self.world.sound_speed / self.source.frequency
 
-    def replace(self, **sections: Mapping[str, Any]) -> "EnvConfig":
+    def replace(self, **sections: Mapping[str, Any]) -> EnvConfig:
         """A copy with some fields changed, e.g. ``replace(filter={"multipath": "none"})``."""
         return from_dict(merge(to_dict(self), sections))
 
 
 def to_dict(config: Any) -> dict[str, Any]:
     """The config as plain, YAML-ready Python values."""
-    out = {}
+    out: dict[str, Any] = {}
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         if dataclasses.is_dataclass(value):
@@ -497,7 +578,9 @@ def _coerce(value: Any, annotation: Any, path: str) -> Any:
         _check(isinstance(value, int) and not isinstance(value, bool), path, f"must be an integer, got {value!r}")
         return value
     if annotation is float:
-        _check(isinstance(value, (int, float)) and not isinstance(value, bool), path, f"must be a number, got {value!r}")
+        _check(
+            isinstance(value, (int, float)) and not isinstance(value, bool), path, f"must be a number, got {value!r}"
+        )
         return float(value)
     if annotation is str:
         _check(isinstance(value, str), path, f"must be a string, got {value!r}")
@@ -516,7 +599,7 @@ def _build(cls: type, data: Mapping[str, Any], path: str) -> Any:
     kwargs = {}
     for name, value in data.items():
         hint = hints[name]
-        if dataclasses.is_dataclass(hint):
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):  # a section (hints are classes)
             kwargs[name] = _build(hint, value, f"{prefix}{name}")
         else:
             kwargs[name] = _coerce(value, hint, f"{prefix}{name}")

@@ -3,26 +3,36 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from aasl_gym import metrics, rewards
-from aasl_gym.config import ConfigError, EnvConfig, PATROLS, from_dict, load_config, to_dict
+from aasl_gym.config import PATROLS, ConfigError, EnvConfig, from_dict, load_config, to_dict
 from aasl_gym.estimator import SourceTracker, TrackerOutput
-from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.filters import ConstantVelocity
+from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.measurement_models import direct_measurement, navigation_covariance
 from aasl_gym.motion import (
-    NavigationError, advance_source, motion_region, move_receiver, receiver_region, sample_source, source_region,
+    NavigationError,
+    advance_source,
+    motion_region,
+    move_receiver,
+    receiver_region,
+    sample_source,
+    source_region,
 )
 from aasl_gym.observation import OBSERVATION_BOUND, OBSERVATION_SIZE, Observation, encode_observation
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 from aasl_gym.planning import GreedyPlanner
 from aasl_gym.sensors import make_sensor
+
+if TYPE_CHECKING:
+    from aasl_gym.render import Renderer  # imported when first rendering: matplotlib is slow to import
 
 # Keyword arguments of gym.make / AASLEnv that override one config field each.
 OVERRIDES: dict[str, tuple[str, str]] = {
@@ -52,8 +62,9 @@ def resolve_config(config: EnvConfig | Mapping[str, Any] | str | Path | None, **
     elif isinstance(config, (str, Path)):
         base = load_config(config)
     else:
-        raise ConfigError("config: expected a path to a YAML file, a mapping or an EnvConfig, "
-                          f"got {type(config).__name__}")
+        raise ConfigError(
+            f"config: expected a path to a YAML file, a mapping or an EnvConfig, got {type(config).__name__}"
+        )
     unknown = sorted(set(overrides) - set(OVERRIDES))
     if unknown:
         raise ConfigError(f"{unknown[0]}: unknown override; allowed: {sorted(OVERRIDES)} and config")
@@ -170,7 +181,7 @@ class AASLEnv(gym.Env):
     * v0: initial version (signal measurement mode by default, geometric on request).
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 5}  # noqa: RUF012  (Gymnasium's class attribute)
 
     def __init__(
         self,
@@ -209,7 +220,7 @@ class AASLEnv(gym.Env):
         self.information = InformationTracker(ConstantVelocity(cfg.filter).process_noise(self.dt))
         self.surface_depth = cfg.receiver.surface_depth if cfg.receiver.kind == "surface" else None
         self.planner = GreedyPlanner(cfg) if patrol == "greedy" else None
-        self._renderer = None
+        self._renderer: Renderer | None = None
         self._time = 0.0
 
     # -- episode -------------------------------------------------------------------------------
@@ -225,7 +236,8 @@ class AASLEnv(gym.Env):
         self.receiver_velocity = np.zeros(3)
         self.navigation.reset()
         self.reported_position, self.reported_velocity = self.navigation.report(
-            rng, self.receiver_position, self.receiver_velocity, self.dt)
+            rng, self.receiver_position, self.receiver_velocity, self.dt
+        )
         self.sensor.reset(rng)
         self.tracker.reset()
         self.information.reset(self.tracker.prior_covariance)
@@ -241,7 +253,9 @@ class AASLEnv(gym.Env):
         self._times: list[float] = []
         self._errors: list[float] = []
         self.trajectory: dict[str, list[np.ndarray]] = {
-            "receiver": [self.receiver_position.copy()], "source": [self.source.position.copy()], "estimate": [],
+            "receiver": [self.receiver_position.copy()],
+            "source": [self.source.position.copy()],
+            "estimate": [],
         }
         if self.render_mode == "human":
             self.render()
@@ -254,8 +268,9 @@ class AASLEnv(gym.Env):
         if self.patrol is not None:
             # The greedy flies the helix until it has an estimate.
             pattern = "helix" if self.patrol == "greedy" else self.patrol
-            command = command + patrol_command(pattern, self._time, self.reported_position, self.config.patrol,
-                                               self.patrol_geometry)
+            command = command + patrol_command(
+                pattern, self._time, self.reported_position, self.config.patrol, self.patrol_geometry
+            )
         return command
 
     def step(self, action):
@@ -292,8 +307,14 @@ class AASLEnv(gym.Env):
         """The robot flies its command and the source its motion for one step; whether the robot hit a limit."""
         receiver = self.config.receiver
         self.receiver_position, self.receiver_velocity, hit = move_receiver(
-            self.receiver_position, self._command(action), self.dt, receiver.max_speed, self.receiver_region,
-            self.fixed, receiver.keep_out_radius, self.surface_depth,
+            self.receiver_position,
+            self._command(action),
+            self.dt,
+            receiver.max_speed,
+            self.receiver_region,
+            self.fixed,
+            receiver.keep_out_radius,
+            self.surface_depth,
         )
         self.source = advance_source(self.source, self.dt, self.motion_region)
         self._steps += 1
@@ -303,21 +324,35 @@ class AASLEnv(gym.Env):
     def _measure(self) -> np.ndarray:
         """The sensor's [RD, RRD] from the true geometry (NaN for a lost frame); then navigation reports the
         robot's state with its error."""
-        z = self.sensor.measure(self.np_random, self._time, self.source.position, self.source.velocity,
-                                self.receiver_position, self.receiver_velocity, self.fixed,
-                                self.config.source.range_rate_bias)
+        z = self.sensor.measure(
+            self.np_random,
+            self._time,
+            self.source.position,
+            self.source.velocity,
+            self.receiver_position,
+            self.receiver_velocity,
+            self.fixed,
+            self.config.source.range_rate_bias,
+        )
         self.reported_position, self.reported_velocity = self.navigation.report(
-            self.np_random, self.receiver_position, self.receiver_velocity, self.dt)
+            self.np_random, self.receiver_position, self.receiver_velocity, self.dt
+        )
         return z
 
     def _track(self, z: np.ndarray) -> TrackerOutput:
         """The tracker takes the frame with the acoustic R the sensor gives it (the tracker adds the
         navigation term itself, from its model at each hypothesis); the planner and the observation follow."""
-        out = self.tracker.step(self._time, z, self.reported_position, self.reported_velocity, self.np_random,
-                                self.sensor.covariance())
+        out = self.tracker.step(
+            self._time, z, self.reported_position, self.reported_velocity, self.np_random, self.sensor.covariance()
+        )
         if self.planner is not None:
-            self.planner.observe(out.initialized, self.tracker.position, self.tracker.velocity, self.reported_position,
-                                 self.reported_velocity)
+            self.planner.observe(
+                out.initialized,
+                self.tracker.position,
+                self.tracker.velocity,
+                self.reported_position,
+                self.reported_velocity,
+            )
         if np.all(np.isfinite(z)):  # the observation holds the last measurement over lost frames
             self._last_measurement[:] = z
         innovation_known = np.all(np.isfinite(out.innovation))
@@ -327,8 +362,9 @@ class AASLEnv(gym.Env):
     def _gather_information(self, z: np.ndarray) -> float:
         """log det of the position information at the estimate after this frame, under the direct path's
         R_eff; a lost frame (dropped by config.fault, or rejected by the detector: NaN) only predicts."""
-        jacobian = measurement_jacobian(self.tracker.position, self.tracker.velocity, self.reported_position,
-                                        self.reported_velocity, self.fixed)
+        jacobian = measurement_jacobian(
+            self.tracker.position, self.tracker.velocity, self.reported_position, self.reported_velocity, self.fixed
+        )
         measured = bool(np.all(np.isfinite(z)))
         noise = self.sensor.covariance() + self.navigation_covariance
         return self.information.step(self.dt, jacobian if measured else None, noise)
@@ -345,20 +381,24 @@ class AASLEnv(gym.Env):
         error = self._position_error() if initialized else math.nan
         first_success = not self._succeeded and error < cfg.reward.success_threshold
         self._succeeded |= first_success
-        terms = rewards.weighted_terms(cfg.reward, {
-            "information_gain": rewards.information_gain(self._fim_logdet, fim_logdet),
-            "error_shrinkage": rewards.error_shrinkage(self._error, error),
-            "control_effort": rewards.control_effort(action),
-            "constraint_penalty": rewards.constraint_penalty(hit),
-            "success_bonus": rewards.success_bonus(first_success),
-        })
+        terms = rewards.weighted_terms(
+            cfg.reward,
+            {
+                "information_gain": rewards.information_gain(self._fim_logdet, fim_logdet),
+                "error_shrinkage": rewards.error_shrinkage(self._error, error),
+                "control_effort": rewards.control_effort(action),
+                "constraint_penalty": rewards.constraint_penalty(hit),
+                "success_bonus": rewards.success_bonus(first_success),
+            },
+        )
         self._fim_logdet, self._error = fim_logdet, error
         self._times.append(self._time)
         self._errors.append(error)
         return terms
 
-    def _info(self, z: np.ndarray, out: TrackerOutput, fim_logdet: float, terms: dict[str, float],
-              converged: bool) -> dict[str, Any]:
+    def _info(
+        self, z: np.ndarray, out: TrackerOutput, fim_logdet: float, terms: dict[str, float], converged: bool
+    ) -> dict[str, Any]:
         """The step's ``info`` (see the class docstring)."""
         return {
             "time": self._time,
@@ -373,8 +413,9 @@ class AASLEnv(gym.Env):
             "position_error": self._position_error(),
             "position_covariance": self.tracker.position_covariance,
             "measurement": np.asarray(z, dtype=float),
-            "measurement_true": direct_measurement(self.source.position, self.source.velocity, self.receiver_position,
-                                                   self.receiver_velocity, self.fixed),
+            "measurement_true": direct_measurement(
+                self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed
+            ),
             "snr_db": float(10 * np.log10(np.min(self.sensor.snr()))),
             "initialized": out.initialized,
             "converged": bool(converged),
@@ -397,7 +438,8 @@ class AASLEnv(gym.Env):
         times, errors = np.asarray(self._times), np.asarray(self._errors)
         return {
             "convergence_time": np.array(
-                metrics.convergence_time(times, errors, self.config.episode.convergence_threshold)),
+                metrics.convergence_time(times, errors, self.config.episode.convergence_threshold)
+            ),
             "rmse": np.array(metrics.rmse(errors)),
             "final_error": np.array(errors[-1] if errors.size else math.nan),
             "success": metrics.success(times, errors),
@@ -410,10 +452,20 @@ class AASLEnv(gym.Env):
         tracker = self.tracker
         estimate = {}
         if tracker.initialized:
-            estimate = {"estimate_position": tracker.position, "estimate_velocity": tracker.velocity,
-                        "position_variance": np.diag(tracker.ukf.P)[:3]}
-        known = Observation(self._time, self.reported_position, self.reported_velocity, self._last_measurement,
-                            self._last_innovation, tracker.initialized, **estimate)
+            estimate = {
+                "estimate_position": tracker.position,
+                "estimate_velocity": tracker.velocity,
+                "position_variance": np.diag(tracker.ukf.P)[:3],
+            }
+        known = Observation(
+            self._time,
+            self.reported_position,
+            self.reported_velocity,
+            self._last_measurement,
+            self._last_innovation,
+            tracker.initialized,
+            **estimate,
+        )
         return encode_observation(known, self.config)
 
     # -- rendering -----------------------------------------------------------------------------

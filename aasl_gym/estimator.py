@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -76,8 +77,14 @@ from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_wei
 from aasl_gym.fisher import information_prior
 from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, robust_loss
 from aasl_gym.measurement_models import (
-    Propagation, direct_measurement, frame_averaged, frame_offsets, multipath_measurement, multipath_spread,
-    receiver_jacobian, receiver_noise,
+    Propagation,
+    direct_measurement,
+    frame_averaged,
+    frame_offsets,
+    multipath_measurement,
+    multipath_spread,
+    receiver_jacobian,
+    receiver_noise,
 )
 from aasl_gym.motion import Box, receiver_region
 from aasl_gym.window import fit_window, subsample, whitened_residuals
@@ -152,7 +159,9 @@ class SourceTracker:
             # The front end's RD and RRD are a frame's mean and slope: at an interference null the phasor
             # model's centre value misses them by many sd (tuning seeds 0-2: 12 % of RD frames beyond 3 sd).
             offsets = frame_offsets(config.signal.frame_duration, f.frame_samples)
-            self.measurement_function = partial(frame_averaged, self.measurement_function, offsets, self.propagation.wavenumber)
+            self.measurement_function = partial(
+                frame_averaged, self.measurement_function, offsets, self.propagation.wavenumber
+            )
         self.window_function = direct_measurement if self.ripple else self.measurement_function
         self.sigma_spread = merwe_weights(self.model.dim, f.alpha, f.beta, f.kappa)[2]
         # What the phasor model's correction adds when unresolved: LC-MAP and the re-seed windows weigh
@@ -160,8 +169,12 @@ class SourceTracker:
         self.multipath_noise = np.zeros((2, 2))
         if self.ripple:
             self.multipath_noise = multipath_spread(
-                self.propagation, region, receiver_region(config.world, receiver), self.fixed,
-                config.source.max_speed, receiver.max_speed,
+                self.propagation,
+                region,
+                receiver_region(config.world, receiver),
+                self.fixed,
+                config.source.max_speed,
+                receiver.max_speed,
             )
         rate = config.measurement.rate
         self.burst_length = max(1, int(round(config.initializer.burst_duration * rate)))
@@ -189,9 +202,14 @@ class SourceTracker:
         self.gap = False  # frames were lost since the last measurement (see :meth:`_reanchor`)
         self.range_offset = 0.0  # m added to every measured RD: whole periods the track slipped by in gaps
 
-
-    def _sigma_measurements(self, sigmas: np.ndarray, position_sd: np.ndarray, resolved: np.ndarray, mobile: np.ndarray,
-                            mobile_velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _sigma_measurements(
+        self,
+        sigmas: np.ndarray,
+        position_sd: np.ndarray,
+        resolved: np.ndarray,
+        mobile: np.ndarray,
+        mobile_velocity: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """h at the sigma points (H, S, n) of every hypothesis at once, and the noise each adds to R_ac.
 
         The noise is the navigation term H_r Sigma_r H_r^T at the hypothesis's mean (row 0). Under the
@@ -207,6 +225,7 @@ class SourceTracker:
         noise = np.zeros((len(sigmas), 2, 2))
         coarse = np.zeros(len(sigmas), dtype=bool)
         if self.ripple:
+            assert self.correction_period is not None  # the ripple is the phasor model's, which has one
             direct = direct_measurement(position, velocity, mobile, mobile_velocity, self.fixed)
             correction = z - direct
             centre = correction[:, :1]
@@ -244,8 +263,19 @@ class SourceTracker:
         noise = covariances[0] if shared else np.mean(covariances, axis=0)
         model = self.measurement_function if fine else self.window_function
         noise = noise if fine else noise + self.multipath_noise
-        return Burst(times, z, positions, velocities, self.fixed, noise, self.wavelength, model, self.correction_period,
-                     self.navigation_sd, robust=self.ripple)
+        return Burst(
+            times,
+            z,
+            positions,
+            velocities,
+            self.fixed,
+            noise,
+            self.wavelength,
+            model,
+            self.correction_period,
+            self.navigation_sd,
+            robust=self.ripple,
+        )
 
     def _reachable(self, time: float) -> Box:
         """Where the source can be at ``time``: the start region grown by the fastest plausible travel."""
@@ -264,7 +294,8 @@ class SourceTracker:
         self.window_start = burst.times[0]
         time = self.history[-1][0]
         self.bank = [
-            self._hypothesis(*self._embed(estimate, i), log_weight, time) for i, log_weight in enumerate(estimate.log_weights)
+            self._hypothesis(*self._embed(estimate, i), log_weight, time)
+            for i, log_weight in enumerate(estimate.log_weights)
         ]
         self.initialized = True
         self.last_reseed = time
@@ -333,7 +364,9 @@ class SourceTracker:
         burst = self._burst(min(length or self._window_length(time), len(self.history)))
         fresh = self._lcmap_at(time)(burst, rng)
         running = [(h.ukf.x, h.ukf.P * inflation) for h in self.bank]
-        candidates = running + [self._embed(fresh, i) for i in range(len(fresh.states))]
+        candidates: list[tuple[np.ndarray, np.ndarray]] = running + [
+            self._embed(fresh, i) for i in range(len(fresh.states))
+        ]
         states = np.array([x for x, _ in candidates])
         base = states[:, self.model.base_index]
         chi_square = self._window_chi_square(burst, states)
@@ -345,7 +378,9 @@ class SourceTracker:
         if not kept:
             return False
         if not self.config.filter.window_fit:
-            self.bank = [self._hypothesis(*candidates[i], -0.5 * (chi_square[i] - chi_square[kept[0]]), time) for i in kept]
+            self.bank = [
+                self._hypothesis(*candidates[i], -0.5 * (chi_square[i] - chi_square[kept[0]]), time) for i in kept
+            ]
             return kept[0] >= len(running)
         # A filter that resolved the ripple competes whatever the coarse ranking (which cannot tell it from
         # candidates metres off) and the diversity cut say.
@@ -367,7 +402,9 @@ class SourceTracker:
         window's re-seeding is over (it weighs every sheet itself)."""
         interval = self.config.filter.sheet_check_interval
         return (
-            self.recovers and interval > 0 and self._sheets_checkable
+            self.recovers
+            and interval > 0
+            and self._sheets_checkable
             and time - self.window_start > self.config.initializer.reseed_until + 1e-9
             and time - self.last_sheet_check >= interval - 1e-9
         )
@@ -376,13 +413,16 @@ class SourceTracker:
         """``x`` moved onto the two neighbouring whole-period sheets (2, n): b_p -+ one wavelength, and the
         position moved along the direct RD's gradient (Newton steps at the latest receiver position) so
         that the predicted RD stays what it was."""
+        assert self.wavelength is not None  # only when the sheets are checkable: a tone
         mobile = self.history[-1][2]
         neighbours = np.repeat(x[None], 2, axis=0)
         for neighbour, periods in zip(neighbours, (1.0, -1.0)):
             neighbour[-2] -= periods * self.wavelength
             target = geometry.range_difference(x[0:3], mobile, self.fixed) + periods * self.wavelength
             for _ in range(3):
-                (to_mobile, unit_mobile), (to_fixed, unit_fixed) = (geometry.ranges(neighbour[0:3], r) for r in (mobile, self.fixed))
+                (to_mobile, unit_mobile), (to_fixed, unit_fixed) = (
+                    geometry.ranges(neighbour[0:3], r) for r in (mobile, self.fixed)
+                )
                 gradient = unit_mobile - unit_fixed  # d RD / d p
                 neighbour[0:3] += gradient * (target - (to_mobile - to_fixed)) / max(gradient @ gradient, 1e-6)
         return neighbours
@@ -415,8 +455,9 @@ class SourceTracker:
         duplicate[:running] = False
         return duplicate
 
-    def _fit_window(self, length: int, states: np.ndarray, resolved_starts: np.ndarray | None = None
-                    ) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
+    def _fit_window(
+        self, length: int, states: np.ndarray, resolved_starts: Sequence[int] | np.ndarray | None = None
+    ) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
         """The sliding-window MAP (:func:`aasl_gym.window.fit_window`) of the last ``length`` samples
         from each of ``states`` (H, n): (start index, state, covariance, log weight, resolved), best first.
 
@@ -450,7 +491,9 @@ class SourceTracker:
         passed = passed[np.unique(top[passed], return_index=True)[1]]  # the better fine fit of a start
         passed = passed[np.argsort(fine.costs[passed], kind="stable")]
         best_cost = fine.costs[passed[0]]
-        resolved = [(top[i], fine.states[i], fine_covariances[i], -0.5 * (fine.costs[i] - best_cost), True) for i in passed]
+        resolved = [
+            (top[i], fine.states[i], fine_covariances[i], -0.5 * (fine.costs[i] - best_cost), True) for i in passed
+        ]
         # The coarse fits that were not resolved follow, half the pruning ratio behind the resolved ones.
         behind = -0.5 * self.config.filter.prune_log_ratio
         return resolved + [(i, x, p, w + behind, False) for i, x, p, w, _ in coarse if i not in top[passed]]
@@ -499,8 +542,9 @@ class SourceTracker:
             nis = np.minimum(nis, RIPPLE_NIS_CAP)
         return float(np.mean(nis)) > self.config.filter.divergence_nis
 
-    def _assimilate(self, dt: float, z: np.ndarray, noise: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray,
-                    time: float) -> None:
+    def _assimilate(
+        self, dt: float, z: np.ndarray, noise: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, time: float
+    ) -> None:
         """Predict every hypothesis, then update it with R_ac (``noise``) plus what its model adds (see
         :meth:`_sigma_measurements`, which serves the whole bank in one call); drop those whose
         covariance breaks or that turn implausible, and - for the paper's single filter, which has no
@@ -509,7 +553,7 @@ class SourceTracker:
         if not predicted:
             self.bank = []
             return
-        sigmas = np.stack([h.ukf.sigmas_f for h in predicted])
+        sigmas = np.stack([h.ukf.sigmas_f for h in predicted])  # type: ignore[misc]  # set by predict()
         unresolved = [self.ripple and not h.resolved for h in predicted]
         # Only a hypothesis that has yet to resolve the ripple needs its position sd (an eigen-decomposition).
         position_sd = np.array([self._position_sd(h.ukf.P) if u else 0.0 for h, u in zip(predicted, unresolved)])
@@ -521,18 +565,25 @@ class SourceTracker:
             ukf = hypothesis.ukf
             try:
                 # h was evaluated for the whole bank at once: this h hands back the hypothesis's share.
-                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.residual)
+                # (mypy cannot type a lambda whose default binds the loop's value.)
+                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.residual)  # type: ignore[misc]
             except np.linalg.LinAlgError:
                 continue
             hypothesis.log_weight += ukf.log_likelihood
             hypothesis.nis.append(ukf.nis)
             if not (self._implausible(ukf, time) or (not self.recovers and self._inconsistent(hypothesis, time))):
-                if self.ripple and not hypothesis.resolved and self._position_sd(ukf.P) < self.config.filter.ripple_split_sd:
+                if (
+                    self.ripple
+                    and not hypothesis.resolved
+                    and self._position_sd(ukf.P) < self.config.filter.ripple_split_sd
+                ):
                     hypothesis = self._resolve_ripple(hypothesis, time)
                 kept.append(hypothesis)
         self.bank = kept
 
-    def _reanchor(self, z: np.ndarray, ukf: UnscentedKalmanFilter, sigma_z: np.ndarray, noise: np.ndarray) -> np.ndarray:
+    def _reanchor(
+        self, z: np.ndarray, ukf: UnscentedKalmanFilter, sigma_z: np.ndarray, noise: np.ndarray
+    ) -> np.ndarray:
         """``z`` after a gap, its RD moved by whole wavelengths to the one the likeliest filter (``ukf``,
         its sigma points' measurements ``sigma_z``, R ``noise``) predicts, if that is sharp enough.
 
@@ -624,8 +675,15 @@ class SourceTracker:
             h.log_weight -= best  # keep the weights relative, the best at 0
         self.bank.sort(key=lambda h: -h.log_weight)
 
-    def step(self, time: float, z: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, rng: np.random.Generator,
-             noise_covariance: np.ndarray | None = None) -> TrackerOutput:
+    def step(
+        self,
+        time: float,
+        z: np.ndarray,
+        mobile: np.ndarray,
+        mobile_velocity: np.ndarray,
+        rng: np.random.Generator,
+        noise_covariance: np.ndarray | None = None,
+    ) -> TrackerOutput:
         """Assimilate one measurement ``z = [RD, RRD]`` taken at ``time`` with the reported receiver state;
         ``noise_covariance`` is this measurement's acoustic R (the tracker's fixed one if None); each
         hypothesis adds the navigation term at its own estimate."""

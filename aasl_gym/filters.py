@@ -17,7 +17,7 @@ Navigation", 2001 (process-noise models, section 6.2).
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -34,11 +34,13 @@ def _white_noise_blocks(dt: float, order: int) -> np.ndarray:
     """
     if order == 2:
         return np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
-    return np.array([
-        [dt**5 / 20, dt**4 / 8, dt**3 / 6],
-        [dt**4 / 8, dt**3 / 3, dt**2 / 2],
-        [dt**3 / 6, dt**2 / 2, dt],
-    ])
+    return np.array(
+        [
+            [dt**5 / 20, dt**4 / 8, dt**3 / 6],
+            [dt**4 / 8, dt**3 / 3, dt**2 / 2],
+            [dt**3 / 6, dt**2 / 2, dt],
+        ]
+    )
 
 
 class MotionModel:
@@ -56,7 +58,9 @@ class MotionModel:
     name: str
     dim: int
 
-    def __init__(self, config: FilterConfig, depth_bounds: tuple[float, float] | None = None, fold_trajectories: bool = False):
+    def __init__(
+        self, config: FilterConfig, depth_bounds: tuple[float, float] | None = None, fold_trajectories: bool = False
+    ):
         self.config = config
         self.depth_bounds = depth_bounds
         self.fold_trajectories = fold_trajectories and depth_bounds is not None
@@ -77,6 +81,7 @@ class MotionModel:
     def _fold(self, states: np.ndarray) -> np.ndarray:
         """Free-motion states (..., n) folded into the depth bounds (in place): z mirrored, the vertical
         velocity and acceleration negated on every odd fold."""
+        assert self.depth_bounds is not None  # fold_trajectories needs them
         low, high = self.depth_bounds
         span = high - low
         phase = np.mod(states[..., 2] - low, 2 * span)
@@ -95,7 +100,7 @@ class MotionModel:
             return x, covariance
         low, high = self.depth_bounds
         outward = 2 * np.sqrt(covariance[5, 5])
-        if not (x[2] > high and x[5] > outward or x[2] < low and x[5] < -outward):
+        if not ((x[2] > high and x[5] > outward) or (x[2] < low and x[5] < -outward)):
             return x, covariance
         flip = np.ones(self.dim)
         flip[self._vertical()] = -1.0
@@ -127,7 +132,9 @@ class MotionModel:
         """Where the base-layout components [p, v, b_p, b_v] sit in this model's state."""
         return np.r_[0:6, self.dim - 2, self.dim - 1]
 
-    def embed(self, state: np.ndarray, covariance: np.ndarray, extra_sd: float, extra_value: float | np.ndarray = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    def embed(
+        self, state: np.ndarray, covariance: np.ndarray, extra_sd: float, extra_value: float | np.ndarray = 0.0
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Lift a base-layout state [p, v, b_p, b_v] (and covariance) into this model's layout.
 
         The model's extra components (acceleration, turn rate) start at ``extra_value`` with sd ``extra_sd``.
@@ -189,11 +196,14 @@ class CoordinatedTurn(MotionModel):
         return q
 
 
-MOTION_MODELS: dict[str, type[MotionModel]] = {m.name: m for m in (ConstantVelocity, ConstantAcceleration, CoordinatedTurn)}
+MOTION_MODELS: dict[str, type[MotionModel]] = {
+    m.name: m for m in (ConstantVelocity, ConstantAcceleration, CoordinatedTurn)
+}
 
 
-def make_motion_model(config: FilterConfig, depth_bounds: tuple[float, float] | None = None,
-                      fold_trajectories: bool = False) -> MotionModel:
+def make_motion_model(
+    config: FilterConfig, depth_bounds: tuple[float, float] | None = None, fold_trajectories: bool = False
+) -> MotionModel:
     return MOTION_MODELS[config.motion_model](config, depth_bounds, fold_trajectories)
 
 
@@ -250,8 +260,13 @@ class UnscentedKalmanFilter:
         self.x, self.P = self.model.reflect(self.x, self.P)
         self.sigmas_f = merwe_sigma_points(self.x, self.P, self.spread)
 
-    def update(self, z: np.ndarray, R: np.ndarray, hx: Callable[[np.ndarray], np.ndarray],
-               residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> None:
+    def update(
+        self,
+        z: np.ndarray,
+        R: np.ndarray,
+        hx: Callable[[np.ndarray], np.ndarray],
+        residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    ) -> None:
         """Update with measurement ``z``; ``residual(z, zp)`` is z - zp unless given (filterpy's
         ``residual_z``: a wrapped component's innovation is taken modulo its period)."""
         if self.sigmas_f is None:

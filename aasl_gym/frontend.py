@@ -61,8 +61,9 @@ def detection_statistic(samples: np.ndarray, band: tuple[float, float], rate: fl
 
 
 @functools.lru_cache(maxsize=64)
-def _frame_gain(count: int, rate: float, carrier: float, band: tuple[float, float],
-                analytic_bins: int | None) -> tuple[np.ndarray, np.ndarray]:
+def _frame_gain(
+    count: int, rate: float, carrier: float, band: tuple[float, float], analytic_bins: int | None
+) -> tuple[np.ndarray, np.ndarray]:
     """(bins, gain): the band gain on a frame's FFT grid, cached since every frame of a run shares it.
 
     For an envelope of ``count`` samples (``analytic_bins`` None) bins is empty and gain covers its FFT;
@@ -110,8 +111,9 @@ def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard:
         times = channel.times[0] + np.arange(kept) / rate
         # Shifting by the carrier's bin mixes with its frequency from the frame's first sample; the
         # remaining factor makes it exp(-j 2 pi f_c t) in absolute time, as the fast path's is.
-        correction = np.exp(-2j * np.pi * (centre * resolution * channel.times[0]
-                                           + (waveform.carrier - centre * resolution) * times))
+        correction = np.exp(
+            -2j * np.pi * (centre * resolution * channel.times[0] + (waveform.carrier - centre * resolution) * times)
+        )
         spectrum = np.zeros((2, kept), dtype=complex)
         for row, samples in enumerate(channels):  # one long real FFT per channel (faster here than one over both rows)
             spectrum[row, (bins - centre) % kept] = 2 * np.fft.rfft(samples)[bins] * gain
@@ -133,7 +135,7 @@ def coarse_lag(envelope: Channel, max_lag: int) -> int:
     sweep or hop whose repetition is longer than twice ``max_lag``)."""
     count = len(envelope.times)
     max_lag = min(max_lag, (count - 1) // 3)
-    inner = envelope.mobile[max_lag: count - max_lag]
+    inner = envelope.mobile[max_lag : count - max_lag]
     full = signal.correlate(envelope.fixed, inner, mode="valid", method="fft")  # n -> conj(R(max_lag - n))
     return int(max_lag - np.argmax(np.abs(full)))
 
@@ -149,8 +151,9 @@ def noise_lag_product(noise_level_db: float, band: tuple[float, float], carrier:
     return complex(integrate.trapezoid(density * np.exp(2j * np.pi * (frequencies - carrier) / rate), frequencies))
 
 
-def _window_delays(envelope: Channel, edges: np.ndarray, lag: int, tone: bool,
-                   noise_lag: complex = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _window_delays(
+    envelope: Channel, edges: np.ndarray, lag: int, tone: bool, noise_lag: complex = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per window [edges[i], edges[i+1]) of the mobile channel: its delay (s) behind the fixed one near
     ``lag`` samples, the normalized correlation there, and the time (s) the delay belongs to (the mean
     time of the mobile samples used: a large lag leaves fewer of them in the frame's first or last
@@ -164,7 +167,7 @@ def _window_delays(envelope: Channel, edges: np.ndarray, lag: int, tone: bool,
     """
     count, rate = len(envelope.fixed), envelope.rate
     low, high = max(0, lag), min(count, count + lag)  # mobile samples whose t - lag lies inside the frame
-    mobile, aligned = envelope.mobile[low:high], envelope.fixed[low - lag: high - lag]
+    mobile, aligned = envelope.mobile[low:high], envelope.fixed[low - lag : high - lag]
     bounds = np.clip(edges, low, high) - low
     starts = bounds[:-1][bounds[1:] > bounds[:-1] + 1]  # windows of two samples or more
     lengths = np.diff(np.append(starts, high - low))
@@ -191,16 +194,20 @@ class DelayTrack:
     coherences: np.ndarray  # normalized correlation magnitude per window
 
 
-def delay_track(envelope: Channel, waveform: Waveform, max_delay: float, windows: int = 10,
-                noise_level_db: float | None = None) -> DelayTrack:
+def delay_track(
+    envelope: Channel, waveform: Waveform, max_delay: float, windows: int = 10, noise_level_db: float | None = None
+) -> DelayTrack:
     """The correlation stage: coarse lag (sweep, hop) and each window's sub-sample delay.
 
     ``max_delay`` (s) bounds the coarse lag search (the baseline over c, plus margin). A known
     ``noise_level_db`` (dB re 1 uPa^2 in the band) debiases a sweep's or hop's mean frequency.
     """
     tone = waveform.kind == "tone"
-    noise_lag = (0.0 if noise_level_db is None
-                 else noise_lag_product(noise_level_db, waveform.band, waveform.carrier, envelope.rate))
+    noise_lag = (
+        0.0
+        if noise_level_db is None
+        else noise_lag_product(noise_level_db, waveform.band, waveform.carrier, envelope.rate)
+    )
     lag = 0 if tone else coarse_lag(envelope, int(np.ceil(max_delay * envelope.rate)))
     edges = np.linspace(0, len(envelope.times), windows + 1).astype(int)
     delays, coherences, times = _window_delays(envelope, edges, lag, tone, noise_lag)
@@ -214,19 +221,27 @@ def tdoa_fdoa(track: DelayTrack, sound_speed: float) -> FrameEstimate:
     """The TDOA / FDOA stage: RD from the track's mean delay, RRD from its least-squares time slope."""
     offsets = track.times - track.times.mean()
     slope = np.dot(offsets, track.delays) / np.dot(offsets, offsets)
-    return FrameEstimate(float(sound_speed * track.delays.mean()), float(sound_speed * slope),
-                         float(np.mean(track.coherences)))
+    return FrameEstimate(
+        float(sound_speed * track.delays.mean()), float(sound_speed * slope), float(np.mean(track.coherences))
+    )
 
 
-def estimate(envelope: Channel, waveform: Waveform, sound_speed: float, max_delay: float, windows: int = 10,
-             noise_level_db: float | None = None) -> FrameEstimate:
+def estimate(
+    envelope: Channel,
+    waveform: Waveform,
+    sound_speed: float,
+    max_delay: float,
+    windows: int = 10,
+    noise_level_db: float | None = None,
+) -> FrameEstimate:
     """[RD, RRD] of one frame from the two channels' complex envelopes (see the module docstring and
     :func:`delay_track`)."""
     return tdoa_fdoa(delay_track(envelope, waveform, max_delay, windows, noise_level_db), sound_speed)
 
 
-def tone_measurement_sd(snr_mobile: float, snr_fixed: float, wavelength: float, bandwidth: float,
-                        duration: float) -> tuple[float, float]:
+def tone_measurement_sd(
+    snr_mobile: float, snr_fixed: float, wavelength: float, bandwidth: float, duration: float
+) -> tuple[float, float]:
     """Cramer-Rao sd of a tone frame's RD (m) and RRD (m/s) from the two channels' in-band SNRs (linear).
 
     A channel's phase over a frame of T seconds in a band of B Hz has Fisher information 2 SNR B T
@@ -235,8 +250,10 @@ def tone_measurement_sd(snr_mobile: float, snr_fixed: float, wavelength: float, 
     """
     inverse_snr = 1.0 / snr_mobile + 1.0 / snr_fixed
     scale = wavelength / (2 * np.pi)
-    return (scale * np.sqrt(inverse_snr / (2 * bandwidth * duration)),
-            scale * np.sqrt(6 * inverse_snr / (bandwidth * duration**3)))
+    return (
+        scale * np.sqrt(inverse_snr / (2 * bandwidth * duration)),
+        scale * np.sqrt(6 * inverse_snr / (bandwidth * duration**3)),
+    )
 
 
 @dataclass
@@ -271,19 +288,43 @@ class FrontEnd:
         """A new episode: a fresh random phase (and hop sequence)."""
         self.waveform = Waveform.random(self.waveform_kind, rng, frequency=self.frequency)
 
-    def measure(self, rng: np.random.Generator, time: float, source, source_velocity, mobile, mobile_velocity, fixed,
-                fault: FrameFault | None = None) -> tuple[FrameEstimate, np.ndarray, bool]:
+    def measure(
+        self,
+        rng: np.random.Generator,
+        time: float,
+        source,
+        source_velocity,
+        mobile,
+        mobile_velocity,
+        fixed,
+        fault: FrameFault | None = None,
+    ) -> tuple[FrameEstimate, np.ndarray, bool]:
         """The frame centred on ``time`` (s), corrupted by ``fault`` if given: its estimate, the two
         channels' measured SNRs (linear) and whether the source was heard in it (:meth:`heard`)."""
         if self.waveform is None:
             self.reset(rng)
-        paths = path_sources(source, source_velocity, self.reflections, self.water_depth, self.surface_reflection,
-                             self.bed_reflection)
+        assert self.waveform is not None  # reset() drew it
+        paths = path_sources(
+            source, source_velocity, self.reflections, self.water_depth, self.surface_reflection, self.bed_reflection
+        )
         baseband = self.path == "fast"
         rate = self.envelope_rate if baseband else self.sample_rate
-        channel = synthesize(self.waveform, time, self.frame + 2 * self.guard, rate, baseband, paths, mobile,
-                             mobile_velocity, fixed, self.sound_speed, self.source_level_db, self.noise_level_db, rng,
-                             fault)
+        channel = synthesize(
+            self.waveform,
+            time,
+            self.frame + 2 * self.guard,
+            rate,
+            baseband,
+            paths,
+            mobile,
+            mobile_velocity,
+            fixed,
+            self.sound_speed,
+            self.source_level_db,
+            self.noise_level_db,
+            rng,
+            fault,
+        )
         envelope = envelopes(channel, self.waveform, self.envelope_rate, self.guard)
         result = estimate(envelope, self.waveform, self.sound_speed, self.max_delay, self.windows, self.noise_level_db)
         return result, self.snr(envelope), self.heard(channel, envelope)
@@ -294,6 +335,7 @@ class FrontEnd:
         ``detection_snr_db``. (A sweep or hop spreads over the band; only clipping is detected for them.)"""
         if saturated(channel.mobile) or saturated(channel.fixed):
             return False
+        assert self.waveform is not None  # called on a frame measure() synthesized
         if self.waveform.kind != "tone":
             return True
         band = tuple(np.asarray(self.waveform.band) - self.waveform.carrier)
@@ -306,6 +348,7 @@ class FrontEnd:
         An envelope's power is twice the real signal's; the filtered noise keeps the share of the band's
         power that the filter's gain passes (its noise bandwidth over the band).
         """
+        assert self.waveform is not None  # called on a frame measure() synthesized
         band = self.waveform.band
         noise = 10 ** (self.noise_level_db / 10)
         filtered_noise = noise * noise_bandwidth(band) / (band[1] - band[0])

@@ -48,7 +48,9 @@ def range_rate_difference(
     """RRD = d|p_s - p_m|/dt - d|p_s - p_f|/dt, m/s."""
     _, unit_mobile = ranges(source, mobile)
     _, unit_fixed = ranges(source, fixed)
-    return range_rate(unit_mobile, source_velocity, mobile_velocity) - range_rate(unit_fixed, source_velocity, fixed_velocity)
+    return range_rate(unit_mobile, source_velocity, mobile_velocity) - range_rate(
+        unit_fixed, source_velocity, fixed_velocity
+    )
 
 
 def fdoa_from_rrd(range_rate_difference_mps: np.ndarray, frequency: float, sound_speed: float) -> np.ndarray:
@@ -112,7 +114,9 @@ def linear_multipath(
     """
     rd = range_difference(source, mobile, fixed)
     rrd = range_rate_difference(source, source_velocity, mobile, mobile_velocity, fixed)
-    for (image, image_velocity), weight in zip(image_sources(source, source_velocity, water_depth), (surface_reflection, bed_reflection)):
+    for (image, image_velocity), weight in zip(
+        image_sources(source, source_velocity, water_depth), (surface_reflection, bed_reflection)
+    ):
         rd = rd + weight * range_difference(image, mobile, fixed)
         rrd = rrd + weight * range_rate_difference(image, image_velocity, mobile, mobile_velocity, fixed)
     return rd, rrd
@@ -170,8 +174,12 @@ def phasor_multipath(
     # The images and the direct ranges are shared by the two receivers' factors and the direct RD and
     # RRD: this model runs on every LC-MAP candidate at every burst sample, where it dominates the cost.
     images = image_sources(source, source_velocity, water_depth)
-    phase_m, phase_rate_m, range_m, range_rate_m = _multipath_phase(source, source_velocity, mobile, mobile_velocity, images, gains, wavenumber)
-    phase_f, phase_rate_f, range_f, range_rate_f = _multipath_phase(source, source_velocity, fixed, ZERO3, images, gains, wavenumber)
+    phase_m, phase_rate_m, range_m, range_rate_m = _multipath_phase(
+        source, source_velocity, mobile, mobile_velocity, images, gains, wavenumber
+    )
+    phase_f, phase_rate_f, range_f, range_rate_f = _multipath_phase(
+        source, source_velocity, fixed, ZERO3, images, gains, wavenumber
+    )
     rd = (range_m - range_f) + (phase_f - phase_m) / wavenumber
     rrd = (range_rate_m - range_rate_f) + (phase_rate_f - phase_rate_m) / wavenumber
     return rd, rrd

@@ -36,8 +36,9 @@ Locus in closed form: with a = p_m - p_f and a candidate p = p_m + r u (u a unit
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -91,7 +92,7 @@ class InitialEstimate:
     accelerations: np.ndarray | None = None  # (H, 3) m/s^2, the acceleration each was fitted with (None: none)
 
     @classmethod
-    def single(cls, state: np.ndarray, covariance: np.ndarray, candidates: int = 1) -> "InitialEstimate":
+    def single(cls, state: np.ndarray, covariance: np.ndarray, candidates: int = 1) -> InitialEstimate:
         return cls(state[None], covariance[None], np.zeros(1), candidates)
 
     @property
@@ -116,7 +117,7 @@ def fibonacci_directions(count: int) -> np.ndarray:
     return np.stack([radial * np.cos(azimuth), radial * np.sin(azimuth), z], axis=-1)
 
 
-def feasible_offsets(first_rd: float, baseline: float, wavelength: float | None) -> np.ndarray:
+def feasible_offsets(first_rd: float, baseline: float | np.floating, wavelength: float | None) -> np.ndarray:
     """Whole-period biases b_p = k * wavelength with |first_rd - b_p| <= baseline (m)."""
     if wavelength is None:
         return np.zeros(1)
@@ -161,11 +162,17 @@ class CandidateMotion:
     def trajectory(self, positions: np.ndarray, velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (C, K, 3) and velocities (C, K, 3) from p, v (C, 3) at the first sample."""
         if self.straight:
-            trajectory, velocity = positions[:, None, :] + velocities[:, None, :] * self.tau[None, :, None], velocities[:, None, :]
+            trajectory, velocity = (
+                positions[:, None, :] + velocities[:, None, :] * self.tau[None, :, None],
+                velocities[:, None, :],
+            )
         else:
             vx, vy, vz = (velocities[:, i, None] for i in range(3))
             displacement = np.stack([self.s * vx - self.c * vy, self.c * vx + self.s * vy, vz * self.tau], axis=-1)
-            velocity = np.stack([self.cos * vx - self.sin * vy, self.sin * vx + self.cos * vy, np.broadcast_to(vz, self.s.shape)], axis=-1)
+            velocity = np.stack(
+                [self.cos * vx - self.sin * vy, self.sin * vx + self.cos * vy, np.broadcast_to(vz, self.s.shape)],
+                axis=-1,
+            )
             trajectory = positions[:, None, :] + displacement
         if self.accelerations is not None:
             a, tau = self.accelerations[:, None, :], self.tau[None, :, None]
@@ -198,6 +205,7 @@ class CandidateMotion:
     def propagate(self, states: np.ndarray, covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Base states (C, 8) and covariances (C, 8, 8) carried to the last sample (the acceleration,
         if any, taken as known)."""
+
         def rotation_like(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # [[a, -b], [b, a]], (C, 2, 2)
             return np.stack([np.stack([a, -b], -1), np.stack([b, a], -1)], -2)
 
@@ -292,7 +300,9 @@ def trajectory_whitener(burst: Burst, trajectory: np.ndarray, trajectory_velocit
     """W (C, K, 2, 2) for R_eff = R_ac + H_r Sigma_r H_r^T of every candidate at every sample, H_r the
     burst model's own receiver Jacobian along the candidate's trajectory (C, K, 3)."""
     receivers = burst.receiver_positions[None], burst.receiver_velocities[None]
-    jacobian = receiver_jacobian(burst.measurement_function, trajectory, trajectory_velocity, *receivers, burst.fixed_position)
+    jacobian = receiver_jacobian(
+        burst.measurement_function, trajectory, trajectory_velocity, *receivers, burst.fixed_position
+    )
     return inverse_cholesky(burst.noise_covariance + receiver_noise(jacobian, *burst.navigation_sd))
 
 
@@ -318,12 +328,22 @@ def _predicted(burst: Burst, positions: np.ndarray, velocities: np.ndarray, moti
     """[RD, RRD] without biases along each candidate's trajectory: (C, K, 2)."""
     trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
     return burst.measurement_function(
-        trajectory, trajectory_velocity, burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position
+        trajectory,
+        trajectory_velocity,
+        burst.receiver_positions[None],
+        burst.receiver_velocities[None],
+        burst.fixed_position,
     )
 
 
-def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarray, biases: np.ndarray,
-                      motion: CandidateMotion | None = None, per_sample: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _burst_chi_square(
+    burst: Burst,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    biases: np.ndarray,
+    motion: CandidateMotion | None = None,
+    per_sample: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Chi-square of the burst for candidate trajectories from p, v at its first time, moving as
     ``motion`` says (straight without): (C,), the whitened residuals (C, K, 2) and the whitener used:
     the burst's uniform one, or with ``per_sample`` each candidate's own R_eff at every sample.
@@ -335,7 +355,9 @@ def _burst_chi_square(burst: Burst, positions: np.ndarray, velocities: np.ndarra
         motion = CandidateMotion(burst.times - burst.times[0], np.zeros(len(positions)))
     trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
     mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
-    residual = burst.measurements[None] - burst.measurement_function(trajectory, trajectory_velocity, mobile, mobile_velocity, burst.fixed_position)
+    residual = burst.measurements[None] - burst.measurement_function(
+        trajectory, trajectory_velocity, mobile, mobile_velocity, burst.fixed_position
+    )
     residual[..., 0] -= biases[:, None]
     residual = periodic_residual(residual, burst)
     white = trajectory_whitener(burst, trajectory, trajectory_velocity) if per_sample else whitener(burst)
@@ -356,7 +378,9 @@ class RandomInitializer(_BroadPrior):
         offsets = feasible_offsets(burst.measurements[0, 0], baseline, burst.wavelength)
         directions = rng.normal(size=(self.config.candidate_directions, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-        points = np.concatenate([locus_points(mobile, fixed, burst.measurements[0, 0] - b, directions) for b in offsets])
+        points = np.concatenate(
+            [locus_points(mobile, fixed, burst.measurements[0, 0] - b, directions) for b in offsets]
+        )
         biases = np.repeat(offsets, len(directions))
         keep = np.isfinite(points[:, 0])
         if not keep.any():
@@ -392,7 +416,9 @@ class LCMAPInitializer:
         mobile, fixed = burst.receiver_positions[0], burst.fixed_position
         baseline = np.linalg.norm(mobile - fixed)
         offsets = feasible_offsets(burst.measurements[0, 0], baseline, burst.wavelength)
-        points = np.concatenate([locus_points(mobile, fixed, burst.measurements[0, 0] - b, self.directions) for b in offsets])
+        points = np.concatenate(
+            [locus_points(mobile, fixed, burst.measurements[0, 0] - b, self.directions) for b in offsets]
+        )
         biases = np.repeat(offsets, len(self.directions))
         region = self.region
         keep = (
@@ -404,15 +430,28 @@ class LCMAPInitializer:
         return points[keep], biases[keep]
 
     @staticmethod
-    def _jacobians(burst: Burst, positions: np.ndarray, velocities: np.ndarray, motion: CandidateMotion,
-                   with_acceleration: bool = False) -> np.ndarray:
+    def _jacobians(
+        burst: Burst,
+        positions: np.ndarray,
+        velocities: np.ndarray,
+        motion: CandidateMotion,
+        with_acceleration: bool = False,
+    ) -> np.ndarray:
         """d[RD, RRD]_k / d[p(t0), v(t0) (, a)] for every candidate and burst sample: (C, K, 2, 6 or 9)."""
         trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
         # The [p, v] columns of fisher.measurement_jacobian, without copying them into its 8 columns first.
-        local = geometry.direct_jacobian(trajectory, trajectory_velocity, burst.receiver_positions[None], burst.receiver_velocities[None], burst.fixed_position)
+        local = geometry.direct_jacobian(
+            trajectory,
+            trajectory_velocity,
+            burst.receiver_positions[None],
+            burst.receiver_velocities[None],
+            burst.fixed_position,
+        )
         return motion.chain(local, with_acceleration, overwrite=True)
 
-    def _solve_velocities(self, burst: Burst, positions: np.ndarray, biases: np.ndarray, motion: CandidateMotion) -> tuple[np.ndarray, np.ndarray]:
+    def _solve_velocities(
+        self, burst: Burst, positions: np.ndarray, biases: np.ndarray, motion: CandidateMotion
+    ) -> tuple[np.ndarray, np.ndarray]:
         """MAP velocities for fixed positions, and the Jacobians (C, K, 2, 6) of the last linearization."""
         prior = np.eye(3) / self.config.velocity_prior_sd**2
         velocities = np.zeros_like(positions)
@@ -425,7 +464,9 @@ class LCMAPInitializer:
             velocities = velocities + np.linalg.solve(normal, gradient[..., None])[..., 0]
         return velocities, jac
 
-    def _score(self, burst: Burst, positions, velocities, biases, motion: CandidateMotion, jacobians=None, per_sample=False):
+    def _score(
+        self, burst: Burst, positions, velocities, biases, motion: CandidateMotion, jacobians=None, per_sample=False
+    ):
         """MAP objective J - lambda log det F for each candidate, J itself, and the information F (C, 6, 6).
 
         F uses ``jacobians`` when given (the grid passes those of its velocity solve's last step, one
@@ -456,7 +497,13 @@ class LCMAPInitializer:
         """
         c = self.config
         tau = burst.times - burst.times[0]
-        extra_prior = [1 / c.max_turn_rate**2] if self.fit_turn else [1 / c.acceleration_prior_sd**2] * 3 if self.fit_acceleration else []
+        extra_prior = (
+            [1 / c.max_turn_rate**2]
+            if self.fit_turn
+            else [1 / c.acceleration_prior_sd**2] * 3
+            if self.fit_acceleration
+            else []
+        )
         prior = np.diag([1e-6] * 3 + [1 / c.velocity_prior_sd**2] * 3 + extra_prior)
         start = [turn_rates[:, None]] if self.fit_turn else [np.zeros_like(positions)] if self.fit_acceleration else []
         theta = np.concatenate([positions, velocities] + start, axis=1)
@@ -466,7 +513,10 @@ class LCMAPInitializer:
             jac = self._jacobians(burst, theta[:, :3], theta[:, 3:6], motion, self.fit_acceleration)
             if self.fit_turn:
                 step_size = 1e-4  # rad/s
-                ahead, behind = (_predicted(burst, theta[:, :3], theta[:, 3:6], CandidateMotion(tau, theta[:, 6] + d)) for d in (step_size, -step_size))
+                ahead, behind = (
+                    _predicted(burst, theta[:, :3], theta[:, 3:6], CandidateMotion(tau, theta[:, 6] + d))
+                    for d in (step_size, -step_size)
+                )
                 jac = np.concatenate([jac, ((ahead - behind) / (2 * step_size))[..., None]], axis=-1)
             normal, gradient = _normal_equations(jac, residual, white)
             normal = normal + prior
@@ -485,7 +535,8 @@ class LCMAPInitializer:
         region = self.region
         return (
             (np.linalg.norm(velocities, axis=1) <= self.config.max_source_speed)
-            & (end[:, 2] >= region.z_min) & (end[:, 2] <= region.z_max)
+            & (end[:, 2] >= region.z_min)
+            & (end[:, 2] <= region.z_max)
             & (np.hypot(end[:, 0], end[:, 1]) <= region.radius)
         )
 
@@ -501,7 +552,13 @@ class LCMAPInitializer:
         tau_end = np.array([burst.times[-1] - burst.times[0]])
         # The grid only has to find basins: on a long window a 1 Hz subset of the burst is enough.
         stride = -(-len(burst.times) // self.grid_samples)
-        grid_burst = replace(burst, **{name: getattr(burst, name)[::stride] for name in ("times", "measurements", "receiver_positions", "receiver_velocities")})
+        grid_burst = replace(
+            burst,
+            **{
+                name: getattr(burst, name)[::stride]
+                for name in ("times", "measurements", "receiver_positions", "receiver_velocities")
+            },
+        )
         grid_motion = CandidateMotion(grid_burst.times - grid_burst.times[0], turn_rates)
         velocities, jacobians = self._solve_velocities(grid_burst, positions, biases, grid_motion)
         score, _, _ = self._score(grid_burst, positions, velocities, biases, grid_motion, jacobians)
@@ -515,13 +572,25 @@ class LCMAPInitializer:
         theta = self._refine(burst, positions[chosen], velocities[chosen], biases, turn_rates)
         refined_p, refined_v = theta[:, 0:3], theta[:, 3:6]
         motion = self._motion(burst.times - burst.times[0], theta, turn_rates)
-        refined_score, chi_square, information = self._score(burst, refined_p, refined_v, biases, motion, per_sample=True)
-        ok = self._plausible(refined_p, refined_v, self._motion(tau_end, theta, turn_rates)) & np.isfinite(refined_score)
+        refined_score, chi_square, information = self._score(
+            burst, refined_p, refined_v, biases, motion, per_sample=True
+        )
+        ok = self._plausible(refined_p, refined_v, self._motion(tau_end, theta, turn_rates)) & np.isfinite(
+            refined_score
+        )
         if ok.any():
             refined_score = np.where(ok, refined_score, np.inf)
-        order = [i for i in np.argsort(refined_score, kind="stable") if np.isfinite(refined_score[i])] or [int(np.argmin(refined_score))]
-        kept = np.array(distinct_hypotheses(order, refined_p, biases, c.hypotheses, self.separation, burst.wavelength, sheets_first=True))
-        states = np.concatenate([refined_p[kept], refined_v[kept], biases[kept, None], np.zeros((len(kept), 1))], axis=1)
+        ranked = [i for i in np.argsort(refined_score, kind="stable") if np.isfinite(refined_score[i])] or [
+            int(np.argmin(refined_score))
+        ]
+        kept = np.array(
+            distinct_hypotheses(
+                ranked, refined_p, biases, c.hypotheses, self.separation, burst.wavelength, sheets_first=True
+            )
+        )
+        states = np.concatenate(
+            [refined_p[kept], refined_v[kept], biases[kept, None], np.zeros((len(kept), 1))], axis=1
+        )
         covariances = np.zeros((len(kept), 8, 8))
         covariances[:, :6, :6] = np.linalg.inv(information[kept]) * c.covariance_inflation
         covariances[:, 6, 6] = c.range_bias_sd**2
@@ -531,24 +600,34 @@ class LCMAPInitializer:
         # burst's own: exp(-J / 2), relative to the likeliest kept hypothesis.
         log_weights = -0.5 * (chi_square[kept] - chi_square[kept].min())
         return InitialEstimate(
-            states, covariances, log_weights, int(plausible.sum()),
+            states,
+            covariances,
+            log_weights,
+            int(plausible.sum()),
             turn_rates=theta[kept, 6] if self.fit_turn else None,
             accelerations=theta[kept, 6:9] if self.fit_acceleration else None,
         )
 
 
-def distinct_hypotheses(order, positions: np.ndarray, sheets: np.ndarray, limit: int, separation: float,
-                        wavelength: float | None, sheets_first: bool = False) -> list[int]:
+def distinct_hypotheses(
+    order,
+    positions: np.ndarray,
+    sheets: np.ndarray,
+    limit: int,
+    separation: float,
+    wavelength: float | None,
+    sheets_first: bool = False,
+) -> list[int]:
     """Up to ``limit`` indices taken from ``order`` (best first), never two on one whole-period sheet
     (range biases closer than half a wavelength) within ``separation`` metres of each other. With
     ``sheets_first`` the best of every sheet comes before any sheet's second."""
     tolerance = 0.5 * wavelength if wavelength else np.inf
 
-    def near(i: int, j: int) -> bool:
+    def near(i: int, j: int) -> bool | np.bool_:
         return abs(sheets[i] - sheets[j]) < tolerance and np.linalg.norm(positions[i] - positions[j]) < separation
 
     kept: list[int] = []
-    for first_pass in ((True, False) if sheets_first else (False,)):
+    for first_pass in (True, False) if sheets_first else (False,):
         for i in order:
             if len(kept) == limit:
                 return kept
@@ -563,7 +642,11 @@ def make_initializer(name: str, config: InitializerConfig, region: Box, motion: 
     """The initializer called ``name``: lcmap (fitting the filter's ``motion`` model), naive, random or tdoa-ls."""
     if name == "lcmap":
         return LCMAPInitializer(config, region, motion)
-    simple = {"naive": NaiveInitializer, "random": RandomInitializer, "tdoa-ls": TdoaLeastSquaresInitializer}
+    simple: dict[str, Callable[[InitializerConfig], Initializer]] = {
+        "naive": NaiveInitializer,
+        "random": RandomInitializer,
+        "tdoa-ls": TdoaLeastSquaresInitializer,
+    }
     if name not in simple:
         raise ValueError(f"unknown initializer {name!r}; allowed: ['lcmap', 'naive', 'random', 'tdoa-ls']")
     return simple[name](config)

@@ -33,9 +33,10 @@ class Propagation:
     wavenumber: float  # rad/m, 2 pi f0 / c
 
     @classmethod
-    def from_config(cls, world: WorldConfig, frequency: float) -> "Propagation":
-        return cls(world.water_depth, world.surface_reflection, world.bed_reflection,
-                   2 * np.pi * frequency / world.sound_speed)
+    def from_config(cls, world: WorldConfig, frequency: float) -> Propagation:
+        return cls(
+            world.water_depth, world.surface_reflection, world.bed_reflection, 2 * np.pi * frequency / world.sound_speed
+        )
 
 
 def direct_measurement(position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
@@ -44,23 +45,33 @@ def direct_measurement(position, velocity, mobile, mobile_velocity, fixed) -> np
     distance_mobile, unit_mobile = geometry.ranges(position, mobile)
     distance_fixed, unit_fixed = geometry.ranges(position, fixed)
     rd = distance_mobile - distance_fixed
-    rrd = (geometry.range_rate(unit_mobile, velocity, mobile_velocity)
-           - geometry.range_rate(unit_fixed, velocity, geometry.ZERO3))
+    rrd = geometry.range_rate(unit_mobile, velocity, mobile_velocity) - geometry.range_rate(
+        unit_fixed, velocity, geometry.ZERO3
+    )
     return np.stack([rd, rrd], axis=-1)
 
 
-def multipath_measurement(model: str, propagation: Propagation, position, velocity, mobile, mobile_velocity,
-                          fixed) -> np.ndarray:
+def multipath_measurement(
+    model: str, propagation: Propagation, position, velocity, mobile, mobile_velocity, fixed
+) -> np.ndarray:
     """[RD, RRD] under ``model``: ``none`` (direct path), ``linear`` (first-order) or ``phasor`` (exact tone)."""
     if model == "none":
         return direct_measurement(position, velocity, mobile, mobile_velocity, fixed)
     p = propagation
     if model == "linear":
-        rd, rrd = geometry.linear_multipath(position, velocity, mobile, mobile_velocity, fixed, p.water_depth,
-                                            p.surface_reflection, p.bed_reflection)
+        rd, rrd = geometry.linear_multipath(
+            position, velocity, mobile, mobile_velocity, fixed, p.water_depth, p.surface_reflection, p.bed_reflection
+        )
     elif model == "phasor":
         rd, rrd = geometry.phasor_multipath(
-            position, velocity, mobile, mobile_velocity, fixed, p.water_depth, p.surface_reflection, p.bed_reflection,
+            position,
+            velocity,
+            mobile,
+            mobile_velocity,
+            fixed,
+            p.water_depth,
+            p.surface_reflection,
+            p.bed_reflection,
             p.wavenumber,
         )
     else:
@@ -68,8 +79,9 @@ def multipath_measurement(model: str, propagation: Propagation, position, veloci
     return np.stack([rd, rrd], axis=-1)
 
 
-def frame_averaged(measurement_function, offsets: np.ndarray, wavenumber: float, position, velocity, mobile,
-                   mobile_velocity, fixed) -> np.ndarray:
+def frame_averaged(
+    measurement_function, offsets: np.ndarray, wavenumber: float, position, velocity, mobile, mobile_velocity, fixed
+) -> np.ndarray:
     """[RD, RRD] (..., 2) as a tone front end measures them over one frame: the mean and the least-squares
     time slope of ``measurement_function``'s RD at ``offsets`` (s, about the frame's centre), the source
     and the mobile hydrophone moving straight on at their velocities meanwhile; the RD track unwrapped
@@ -82,8 +94,10 @@ def frame_averaged(measurement_function, offsets: np.ndarray, wavenumber: float,
     velocity, mobile_velocity = np.asarray(velocity, dtype=float), np.asarray(mobile_velocity, dtype=float)
     along = offsets[:, None]
     rd = measurement_function(
-        np.asarray(position, dtype=float)[..., None, :] + along * velocity[..., None, :], velocity[..., None, :],
-        np.asarray(mobile, dtype=float)[..., None, :] + along * mobile_velocity[..., None, :], mobile_velocity[..., None, :],
+        np.asarray(position, dtype=float)[..., None, :] + along * velocity[..., None, :],
+        velocity[..., None, :],
+        np.asarray(mobile, dtype=float)[..., None, :] + along * mobile_velocity[..., None, :],
+        mobile_velocity[..., None, :],
         fixed,
     )[..., 0]
     rd = np.unwrap(rd * wavenumber, axis=-1) / wavenumber
@@ -95,8 +109,6 @@ def frame_averaged(measurement_function, offsets: np.ndarray, wavenumber: float,
 def frame_offsets(duration: float, samples: int) -> np.ndarray:
     """Centres (s) of ``samples`` equal parts of a frame of ``duration`` s, about its centre."""
     return ((np.arange(samples) + 0.5) / samples - 0.5) * duration
-
-
 
 
 RECEIVER_STEP = 1e-3  # m: central-difference step of the receiver Jacobian (a wavelength is 1.5 m)
@@ -127,16 +139,19 @@ def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_v
     if measurement_function is direct_measurement:
         return direct_receiver_jacobian(position, velocity, mobile, mobile_velocity)
     position, velocity = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
-    batch = np.broadcast_shapes(position.shape[:-1], velocity.shape[:-1], np.shape(mobile)[:-1],
-                                np.shape(mobile_velocity)[:-1])
+    batch = np.broadcast_shapes(
+        position.shape[:-1], velocity.shape[:-1], np.shape(mobile)[:-1], np.shape(mobile_velocity)[:-1]
+    )
     # Rows 0-5 move p_m by +-step along each axis, row 6 is the point itself, rows 7-9 add 1 m/s to v_m.
     offsets, rate_offsets = np.zeros((10, 3)), np.zeros((10, 3))
     offsets[0:3], offsets[3:6], rate_offsets[7:10] = RECEIVER_STEP * np.eye(3), -RECEIVER_STEP * np.eye(3), np.eye(3)
     expand = (slice(None),) * len(batch) + (None,)
     z = measurement_function(
-        np.broadcast_to(position, batch + (3,))[expand], np.broadcast_to(velocity, batch + (3,))[expand],
+        np.broadcast_to(position, batch + (3,))[expand],
+        np.broadcast_to(velocity, batch + (3,))[expand],
         np.broadcast_to(mobile, batch + (3,))[expand] + offsets,
-        np.broadcast_to(mobile_velocity, batch + (3,))[expand] + rate_offsets, fixed,
+        np.broadcast_to(mobile_velocity, batch + (3,))[expand] + rate_offsets,
+        fixed,
     )  # (..., 10, 2)
     jacobian = np.empty(batch + (2, 6))
     jacobian[..., :3] = np.swapaxes(z[..., 0:3, :] - z[..., 3:6, :], -1, -2) / (2 * RECEIVER_STEP)
@@ -151,8 +166,9 @@ def receiver_noise(jacobian: np.ndarray, position_sd: float, velocity_sd: float)
     return position_sd**2 * position @ np.swapaxes(position, -1, -2) + velocity_sd**2 * rate @ np.swapaxes(rate, -1, -2)
 
 
-def multipath_spread(propagation: Propagation, sources, receivers, fixed, source_speed: float, receiver_speed: float,
-                     samples: int = 4000) -> np.ndarray:
+def multipath_spread(
+    propagation: Propagation, sources, receivers, fixed, source_speed: float, receiver_speed: float, samples: int = 4000
+) -> np.ndarray:
     """diag of the phasor model's multipath correction's variance (RD m^2, RRD m^2/s^2) over the
     surveillance volume: sources uniform in the ``sources`` box, receivers in ``receivers`` (motion Boxes),
     random velocities up to the given speeds. The RD correction is taken modulo the wavelength about
@@ -172,8 +188,13 @@ def multipath_spread(propagation: Propagation, sources, receivers, fixed, source
         direction = rng.normal(size=(samples, 3))
         return speed * rng.uniform(size=(samples, 1)) * direction / np.linalg.norm(direction, axis=1, keepdims=True)
 
-    arguments = (inside(sources), velocities(source_speed), inside(receivers), velocities(receiver_speed),
-                 np.asarray(fixed, dtype=float))
+    arguments = (
+        inside(sources),
+        velocities(source_speed),
+        inside(receivers),
+        velocities(receiver_speed),
+        np.asarray(fixed, dtype=float),
+    )
     correction = multipath_measurement("phasor", propagation, *arguments) - direct_measurement(*arguments)
     period = 2 * np.pi / propagation.wavenumber
     phase = np.angle(np.mean(np.exp(2j * np.pi * correction[:, 0] / period)))
@@ -198,8 +219,9 @@ def signal_noise_sd(config: EnvConfig, snr_mobile, snr_fixed) -> np.ndarray:
     source, sig = config.source, config.signal
     band = receiver_band(source.waveform, source.frequency)
     wavelength = config.world.sound_speed / carrier_frequency(source.waveform, source.frequency)
-    sd = np.stack(tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], sig.frame_duration),
-                  axis=-1)
+    sd = np.stack(
+        tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], sig.frame_duration), axis=-1
+    )
     return np.maximum(sig.sd_inflation * sd, [sig.min_range_difference_sd, sig.min_range_rate_difference_sd])
 
 
@@ -217,8 +239,9 @@ def expected_noise_covariance(config: EnvConfig, source_position: np.ndarray, mo
     where no frame has been measured yet."""
     fixed = np.asarray(config.world.fixed_position, dtype=float)
     if config.measurement.mode == "signal":
-        sd = signal_noise_sd(config, model_snr(config, source_position, mobile),
-                             model_snr(config, source_position, fixed))
+        sd = signal_noise_sd(
+            config, model_snr(config, source_position, mobile), model_snr(config, source_position, fixed)
+        )
     else:
         shape = np.broadcast_shapes(np.shape(source_position), np.shape(mobile))[:-1]
         measurement = config.measurement

@@ -55,7 +55,11 @@ def sample_initial_position(rng: np.random.Generator, radius: float, region: Box
     """Uniform in the ball of ``radius`` about the origin, restricted to ``region`` (rejection sampling)."""
     while True:
         point = rng.uniform(-radius, radius, size=3)
-        if point @ point <= radius**2 and region.z_min <= point[2] <= region.z_max and np.hypot(point[0], point[1]) <= region.radius:
+        if (
+            point @ point <= radius**2
+            and region.z_min <= point[2] <= region.z_max
+            and np.hypot(point[0], point[1]) <= region.radius
+        ):
             return point
 
 
@@ -88,7 +92,9 @@ def sample_source(rng: np.random.Generator, kind: str, source: SourceConfig, wor
     return SourceState(kind, position, velocity, acceleration, turn_rate, source.max_speed)
 
 
-def coordinated_turn_displacement(velocity: np.ndarray, turn_rate: np.ndarray | float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def coordinated_turn_displacement(
+    velocity: np.ndarray, turn_rate: np.ndarray | float, dt: np.ndarray | float
+) -> tuple[np.ndarray, np.ndarray]:
     """Exact displacement (m) and final velocity (m/s) over ``dt`` of a horizontal turn at ``turn_rate``.
 
     Broadcasts over leading dimensions of ``velocity`` (``(..., 3)``) and ``turn_rate`` (``(...)``).
@@ -200,9 +206,12 @@ class NavigationError:
     def reset(self) -> None:
         self.drift = np.zeros(3)
 
-    def report(self, rng: np.random.Generator, position: np.ndarray, velocity: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def report(
+        self, rng: np.random.Generator, position: np.ndarray, velocity: np.ndarray, dt: float
+    ) -> tuple[np.ndarray, np.ndarray]:
         if self.drift is None:
             self.reset()
+        assert self.drift is not None  # reset() set it
         if self.drift_sd > 0:
             self.drift = self.drift + rng.normal(0.0, self.drift_sd * np.sqrt(dt), 3)
         noise = rng.normal(0.0, 1.0, 6)

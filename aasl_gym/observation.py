@@ -66,6 +66,9 @@ def encode_observation(observation: Observation, config: EnvConfig) -> np.ndarra
     vector = np.zeros(OBSERVATION_SIZE)
     s = OBSERVATION_SLICES
     if observation.initialized:
+        # An initialized observation carries the estimate (see Observation).
+        assert observation.estimate_position is not None and observation.estimate_velocity is not None
+        assert observation.position_variance is not None
         vector[s["relative_estimate"]] = (observation.estimate_position - observation.receiver_position) / scale
         vector[s["estimate_velocity"]] = observation.estimate_velocity / config.source.max_speed
         vector[s["log_variance"]] = np.log(np.maximum(observation.position_variance, VARIANCE_FLOOR)) / 10.0

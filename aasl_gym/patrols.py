@@ -31,10 +31,12 @@ class PatrolGeometry:
     start: np.ndarray  # (3,) m
 
     @classmethod
-    def from_config(cls, config: EnvConfig) -> "PatrolGeometry":
+    def from_config(cls, config: EnvConfig) -> PatrolGeometry:
         """Centred on the fixed hydrophone, from where the robot starts."""
-        return cls(np.asarray(config.world.fixed_position, dtype=float),
-                   np.asarray(config.receiver.start_position, dtype=float))
+        return cls(
+            np.asarray(config.world.fixed_position, dtype=float),
+            np.asarray(config.receiver.start_position, dtype=float),
+        )
 
     @property
     def start_angle(self) -> float:
@@ -116,10 +118,17 @@ def lawnmower_reference(t: float, config: PatrolConfig, geometry: PatrolGeometry
     return waypoints[index] + along * tangent, direction * config.speed * tangent
 
 
-REFERENCES = {"helix": helix_reference, "circle": circle_reference, "spiral": spiral_reference, "lawnmower": lawnmower_reference}
+REFERENCES = {
+    "helix": helix_reference,
+    "circle": circle_reference,
+    "spiral": spiral_reference,
+    "lawnmower": lawnmower_reference,
+}
 
 
-def patrol_command(pattern: str, t: float, position: np.ndarray, config: PatrolConfig, geometry: PatrolGeometry) -> np.ndarray:
+def patrol_command(
+    pattern: str, t: float, position: np.ndarray, config: PatrolConfig, geometry: PatrolGeometry
+) -> np.ndarray:
     """Velocity command (m/s) that follows ``pattern`` from the robot's (reported) ``position`` at time ``t``."""
     try:
         reference = REFERENCES[pattern]

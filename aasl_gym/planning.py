@@ -26,7 +26,12 @@ import numpy as np
 from aasl_gym.config import EnvConfig
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.fisher import (
-    InformationTracker, cv_transition_matrix, information_prior, measurement_jacobian, position_information_logdet, updated_covariance,
+    InformationTracker,
+    cv_transition_matrix,
+    information_prior,
+    measurement_jacobian,
+    position_information_logdet,
+    updated_covariance,
 )
 from aasl_gym.measurement_models import expected_noise_covariance
 from aasl_gym.motion import receiver_region
@@ -76,7 +81,9 @@ class GreedyPlanner:
         jacobian = measurement_jacobian(point[:3], point[3:], receiver, receiver_velocity, self.fixed)
         self.information.step(self.dt, jacobian, expected_noise_covariance(self.config, point[:3], receiver))
 
-    def scores(self, covariance: np.ndarray, estimate: np.ndarray, estimate_velocity: np.ndarray, receiver: np.ndarray) -> np.ndarray:
+    def scores(
+        self, covariance: np.ndarray, estimate: np.ndarray, estimate_velocity: np.ndarray, receiver: np.ndarray
+    ) -> np.ndarray:
         """Position information (log det, nats) after flying each command for the horizon, starting from
         the information ``covariance`` (8x8) about the source at ``estimate`` moving at ``estimate_velocity``
         with the robot at ``receiver``; -inf where the straight path leaves the region or enters the
@@ -86,7 +93,9 @@ class GreedyPlanner:
         if self.surface_depth is not None:
             paths[..., 2] = -self.surface_depth
         source = estimate + estimate_velocity * lags[:, None]  # (S, 3)
-        jacobians = measurement_jacobian(source[None], estimate_velocity, paths, self.commands[:, None], self.fixed)  # (C, S, 2, 8)
+        jacobians = measurement_jacobian(
+            source[None], estimate_velocity, paths, self.commands[:, None], self.fixed
+        )  # (C, S, 2, 8)
         noises = expected_noise_covariance(self.config, source[None], paths)  # (C, S, 2, 2)
         covariance = np.broadcast_to(covariance, (len(self.commands), 8, 8))
         for k in range(self.steps):
@@ -96,11 +105,14 @@ class GreedyPlanner:
         region = self.region
         inside = (
             (np.hypot(paths[..., 0], paths[..., 1]) <= region.radius).all(axis=1)
-            & (paths[..., 2] >= region.z_min).all(axis=1) & (paths[..., 2] <= region.z_max).all(axis=1)
+            & (paths[..., 2] >= region.z_min).all(axis=1)
+            & (paths[..., 2] <= region.z_max).all(axis=1)
             & (np.linalg.norm(paths - self.fixed, axis=-1) >= self.config.receiver.keep_out_radius).all(axis=1)
         )
         return np.where(inside, score, -np.inf) if inside.any() else score
 
     def command(self, estimate, estimate_velocity, receiver) -> np.ndarray:
         """The best-scored command (m/s) from the information observed so far."""
-        return self.commands[int(np.argmax(self.scores(self.information.covariance, estimate, estimate_velocity, receiver)))]
+        return self.commands[
+            int(np.argmax(self.scores(self.information.covariance, estimate, estimate_velocity, receiver)))
+        ]

@@ -7,8 +7,8 @@ works headless; ``human`` opens a pyplot window with whatever backend the user h
 from __future__ import annotations
 
 import numpy as np
-from matplotlib.figure import Figure
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
 from aasl_gym.config import EnvConfig
@@ -16,7 +16,9 @@ from aasl_gym.config import EnvConfig
 COLOURS = {"receiver": "tab:blue", "source": "tab:red", "estimate": "tab:green", "fixed": "black"}
 
 
-def covariance_ellipse(covariance: np.ndarray, axes: tuple[int, int], centre: np.ndarray, sigmas: float = 2.0, **style) -> Ellipse:
+def covariance_ellipse(
+    covariance: np.ndarray, axes: tuple[int, int], centre: np.ndarray, sigmas: float = 2.0, **style
+) -> Ellipse:
     """The ``sigmas``-sigma ellipse of the 2-D marginal of a 3x3 position covariance."""
     block = covariance[np.ix_(axes, axes)]
     values, vectors = np.linalg.eigh(block)
@@ -26,12 +28,21 @@ def covariance_ellipse(covariance: np.ndarray, axes: tuple[int, int], centre: np
     return Ellipse((centre[axes[0]], centre[axes[1]]), width, height, angle=angle, **style)
 
 
-def draw_episode(figure: Figure, trajectory: dict[str, list[np.ndarray]], fixed: np.ndarray, covariance: np.ndarray | None,
-                 time: float, config: EnvConfig, title: str | None = None) -> None:
+def draw_episode(
+    figure: Figure,
+    trajectory: dict[str, list[np.ndarray]],
+    fixed: np.ndarray,
+    covariance: np.ndarray | None,
+    time: float,
+    config: EnvConfig,
+    title: str | None = None,
+) -> None:
     """Top view (x-y) and depth view (x-z) of the robot, source and estimate paths."""
     figure.clear()
     top, side = figure.subplots(1, 2)
-    limit = max(config.world.region_radius, config.receiver.region_radius)  # the robot may roam beyond the source's region
+    limit = max(
+        config.world.region_radius, config.receiver.region_radius
+    )  # the robot may roam beyond the source's region
     for ax, (i, j), labels in ((top, (0, 1), ("x (m)", "y (m)")), (side, (0, 2), ("x (m)", "z (m)"))):
         for name in ("receiver", "source", "estimate"):
             points = np.asarray(trajectory.get(name, []))
@@ -41,7 +52,9 @@ def draw_episode(figure: Figure, trajectory: dict[str, list[np.ndarray]], fixed:
         ax.plot(fixed[i], fixed[j], "s", color=COLOURS["fixed"], ms=6, label="pod")
         estimate = trajectory.get("estimate") or []
         if covariance is not None and len(estimate) and np.all(np.isfinite(covariance)):
-            ax.add_patch(covariance_ellipse(covariance, (i, j), estimate[-1], fill=False, color=COLOURS["estimate"], ls="--"))
+            ax.add_patch(
+                covariance_ellipse(covariance, (i, j), estimate[-1], fill=False, color=COLOURS["estimate"], ls="--")
+            )
         ax.set_xlabel(labels[0])
         ax.set_ylabel(labels[1])
         ax.set_xlim(-limit, limit)

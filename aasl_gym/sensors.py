@@ -29,8 +29,17 @@ class Sensor(Protocol):
     def reset(self, rng: np.random.Generator | None = None) -> None:
         """A new episode: the unwrapping starts over (and whatever the sensor draws per episode is drawn)."""
 
-    def measure(self, rng: np.random.Generator, time: float, source_position, source_velocity, mobile, mobile_velocity,
-                fixed, range_rate_bias: float = 0.0) -> np.ndarray:
+    def measure(
+        self,
+        rng: np.random.Generator,
+        time: float,
+        source_position,
+        source_velocity,
+        mobile,
+        mobile_velocity,
+        fixed,
+        range_rate_bias: float = 0.0,
+    ) -> np.ndarray:
         """z (m, m/s) of the frame at ``time`` (s) from the true source and receiver states (m, m/s), with
         ``range_rate_bias`` (m/s, a clock-rate offset) added to RRD; NaN for a lost frame."""
 
@@ -71,12 +80,22 @@ class GeometricSensor:
     def reset(self, rng: np.random.Generator | None = None) -> None:
         self.unwrapper.reset()
 
-    def measure(self, rng: np.random.Generator, time: float, source_position, source_velocity, mobile, mobile_velocity,
-                fixed, range_rate_bias: float = 0.0) -> np.ndarray:
+    def measure(
+        self,
+        rng: np.random.Generator,
+        time: float,
+        source_position,
+        source_velocity,
+        mobile,
+        mobile_velocity,
+        fixed,
+        range_rate_bias: float = 0.0,
+    ) -> np.ndarray:
         """z at ``time`` (s; the geometry is taken as given) from the true source and receiver states."""
         model = "phasor" if self.reflections else "none"
-        truth = multipath_measurement(model, self.propagation, source_position, source_velocity, mobile,
-                                      mobile_velocity, fixed)
+        truth = multipath_measurement(
+            model, self.propagation, source_position, source_velocity, mobile, mobile_velocity, fixed
+        )
         noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
         self._snr = model_snr(self.config, source_position, np.array([mobile, fixed]))
         if self.fault.active(time):
@@ -114,12 +133,23 @@ class SignalSensor:
         world, source, sig = config.world, config.source, config.signal
         self.config = config
         self.front_end = FrontEnd(
-            waveform_kind=source.waveform, frequency=source.frequency, path=sig.path, frame=sig.frame_duration,
-            guard=sig.guard, sample_rate=sig.sample_rate, envelope_rate=sig.envelope_rate, windows=sig.windows,
-            sound_speed=world.sound_speed, source_level_db=source.source_level_db,
-            noise_level_db=world.noise_level_db, reflections=world.reflections, water_depth=world.water_depth,
-            surface_reflection=world.surface_reflection, bed_reflection=world.bed_reflection,
-            max_delay=2.5 * world.region_radius / world.sound_speed, detection_snr_db=sig.detection_snr_db,
+            waveform_kind=source.waveform,
+            frequency=source.frequency,
+            path=sig.path,
+            frame=sig.frame_duration,
+            guard=sig.guard,
+            sample_rate=sig.sample_rate,
+            envelope_rate=sig.envelope_rate,
+            windows=sig.windows,
+            sound_speed=world.sound_speed,
+            source_level_db=source.source_level_db,
+            noise_level_db=world.noise_level_db,
+            reflections=world.reflections,
+            water_depth=world.water_depth,
+            surface_reflection=world.surface_reflection,
+            bed_reflection=world.bed_reflection,
+            max_delay=2.5 * world.region_radius / world.sound_speed,
+            detection_snr_db=sig.detection_snr_db,
         )
         self.unwrapper = Unwrapper(period)
         self.fault = config.fault
@@ -133,13 +163,24 @@ class SignalSensor:
         if rng is not None:
             self.front_end.reset(rng)
 
-    def measure(self, rng: np.random.Generator, time: float, source_position, source_velocity, mobile, mobile_velocity,
-                fixed, range_rate_bias: float = 0.0) -> np.ndarray:
+    def measure(
+        self,
+        rng: np.random.Generator,
+        time: float,
+        source_position,
+        source_velocity,
+        mobile,
+        mobile_velocity,
+        fixed,
+        range_rate_bias: float = 0.0,
+    ) -> np.ndarray:
         fault = self.fault if self.fault.active(time) else None
-        corrupted = fault is not None and fault.kind != "dropped"  # a dropped frame is synthesized intact
-        corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level) if corrupted else None
-        result, self._snr, heard = self.front_end.measure(rng, time, source_position, source_velocity, mobile,
-                                                          mobile_velocity, fixed, corrupt)
+        corrupt = None
+        if fault is not None and fault.kind != "dropped":  # a dropped frame is synthesized intact
+            corrupt = FrameFault(fault.kind, fault.channels, fault.clip_level)
+        result, self._snr, heard = self.front_end.measure(
+            rng, time, source_position, source_velocity, mobile, mobile_velocity, fixed, corrupt
+        )
         self._covariance = np.diag(signal_noise_sd(self.config, self._snr[0], self._snr[1]) ** 2)
         if fault and fault.kind == "dropped":
             self._snr = np.full(2, np.nan)

@@ -29,12 +29,12 @@ import numpy as np
 from aasl_gym import geometry
 from aasl_gym.bandpass import band_gain
 
-
 WAVEFORM_KINDS = ("tone", "sweep", "hop")
 
 
-def receiver_band(kind: str, frequency: float = 1000.0, low: float = 500.0,
-                  high: float = 1500.0) -> tuple[float, float]:
+def receiver_band(
+    kind: str, frequency: float = 1000.0, low: float = 500.0, high: float = 1500.0
+) -> tuple[float, float]:
     """Hz, the receiver's band for a waveform: +-10 % about a tone's f0, else the sweep's or hops' range."""
     return (0.9 * frequency, 1.1 * frequency) if kind == "tone" else (low, high)
 
@@ -70,9 +70,17 @@ class Waveform:
             raise ValueError("a hop waveform needs its hop sequence (hops)")
 
     @classmethod
-    def random(cls, kind: str, rng: np.random.Generator, frequency: float = 1000.0, low: float = 500.0,
-               high: float = 1500.0, sweep_period: float = 0.2, hop_dwell: float = 0.01,
-               hop_count: int = 256) -> "Waveform":
+    def random(
+        cls,
+        kind: str,
+        rng: np.random.Generator,
+        frequency: float = 1000.0,
+        low: float = 500.0,
+        high: float = 1500.0,
+        sweep_period: float = 0.2,
+        hop_dwell: float = 0.01,
+        hop_count: int = 256,
+    ) -> Waveform:
         """A waveform with a random phase (and, for ``hop``, a random sequence of ``hop_count`` frequencies)."""
         hops = tuple(rng.uniform(low, high, hop_count)) if kind == "hop" else ()
         return cls(kind, frequency, low, high, sweep_period, hop_dwell, hops, float(rng.uniform(0.0, 2 * np.pi)))
@@ -155,20 +163,36 @@ def frame_times(centre: float, duration: float, rate: float) -> np.ndarray:
     return centre + (np.arange(count) - 0.5 * (count - 1)) / rate
 
 
-def path_sources(source: np.ndarray, source_velocity: np.ndarray, reflections: bool, water_depth: float,
-                 surface_reflection: float, bed_reflection: float) -> list[tuple[np.ndarray, np.ndarray, float]]:
+def path_sources(
+    source: np.ndarray,
+    source_velocity: np.ndarray,
+    reflections: bool,
+    water_depth: float,
+    surface_reflection: float,
+    bed_reflection: float,
+) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """(position, velocity, gain) of every path's (image) source: the direct path, then surface and bed."""
     paths = [(np.asarray(source, float), np.asarray(source_velocity, float), 1.0)]
     if reflections:
         (surface, surface_v), (bed, bed_v) = geometry.image_sources(
-            np.asarray(source, float), np.asarray(source_velocity, float), water_depth)
+            np.asarray(source, float), np.asarray(source_velocity, float), water_depth
+        )
         paths += [(surface, surface_v, surface_reflection), (bed, bed_v, bed_reflection)]
     return paths
 
 
-def received_pressure(waveform: Waveform, times: np.ndarray, centre: float, paths, receivers: np.ndarray,
-                      receiver_velocities: np.ndarray, sound_speed: float, amplitude: float, analytic: bool,
-                      carrier: float = 0.0) -> np.ndarray:
+def received_pressure(
+    waveform: Waveform,
+    times: np.ndarray,
+    centre: float,
+    paths,
+    receivers: np.ndarray,
+    receiver_velocities: np.ndarray,
+    sound_speed: float,
+    amplitude: float,
+    analytic: bool,
+    carrier: float = 0.0,
+) -> np.ndarray:
     """Pressure sum_k amplitude g_k / r_k(t) exp(j Phi(t - r_k(t)/c)) at each receiver, shape (R, N)
     for receivers (R, 3): complex with ``analytic`` (times exp(-j 2 pi carrier t), the complex envelope,
     for a nonzero ``carrier`` in Hz), else its real part (cosines).
@@ -209,10 +233,22 @@ def peak_amplitude(source_level_db: float) -> float:
     return float(np.sqrt(2.0) * 10 ** (source_level_db / 20))
 
 
-def synthesize(waveform: Waveform, centre: float, duration: float, rate: float, baseband: bool, paths,
-               mobile, mobile_velocity, fixed, sound_speed: float, source_level_db: float,
-               noise_level_db: float | None, rng: np.random.Generator | None,
-               fault: FrameFault | None = None) -> Channel:
+def synthesize(
+    waveform: Waveform,
+    centre: float,
+    duration: float,
+    rate: float,
+    baseband: bool,
+    paths,
+    mobile,
+    mobile_velocity,
+    fixed,
+    sound_speed: float,
+    source_level_db: float,
+    noise_level_db: float | None,
+    rng: np.random.Generator | None,
+    fault: FrameFault | None = None,
+) -> Channel:
     """Both channels of one frame: real at ``rate`` Hz (the hardware path) or, with ``baseband``, the
     complex envelope about the waveform's carrier at ``rate`` Hz (the fast path). ``noise_level_db``
     None gives noise-free channels; ``fault`` corrupts some of them."""
@@ -220,12 +256,23 @@ def synthesize(waveform: Waveform, centre: float, duration: float, rate: float, 
     carrier = waveform.carrier if baseband else 0.0
     receivers = np.array([mobile, fixed], dtype=float)
     velocities = np.array([mobile_velocity, np.zeros(3)], dtype=float)
-    channels = received_pressure(waveform, times, centre, paths, receivers, velocities, sound_speed,
-                                 peak_amplitude(source_level_db), baseband, carrier)
+    channels = received_pressure(
+        waveform,
+        times,
+        centre,
+        paths,
+        receivers,
+        velocities,
+        sound_speed,
+        peak_amplitude(source_level_db),
+        baseband,
+        carrier,
+    )
     corrupted = np.asarray(fault.channels if fault else (False, False))
     if fault and fault.kind == "silent":
         channels[corrupted] = 0.0
     if noise_level_db is not None:
+        assert rng is not None, "noise needs an rng"
         sd = noise_sd(noise_level_db, waveform.band, rate, complex_samples=baseband)
         if baseband:
             # White noise's DFT bins are independent complex Gaussians: draw only the bins the band-pass

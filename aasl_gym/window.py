@@ -29,7 +29,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from aasl_gym import geometry
 from aasl_gym.filters import MotionModel
 from aasl_gym.initializers import Burst, periodic_residual, robust_loss, robust_weights, trajectory_whitener, whiten
 
@@ -52,7 +51,13 @@ def subsample(burst: Burst, samples: int) -> Burst:
     if count <= samples:
         return burst
     index = np.round(np.linspace(count - 1, 0, samples))[::-1].astype(int)
-    return replace(burst, **{name: getattr(burst, name)[index] for name in ("times", "measurements", "receiver_positions", "receiver_velocities")})
+    return replace(
+        burst,
+        **{
+            name: getattr(burst, name)[index]
+            for name in ("times", "measurements", "receiver_positions", "receiver_velocities")
+        },
+    )
 
 
 def _trajectory(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndarray:
@@ -63,7 +68,9 @@ def _trajectory(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndar
 def _measure(burst: Burst, trajectory: np.ndarray) -> np.ndarray:
     """h along trajectories (C, K, n), without their biases: (C, K, 2)."""
     mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
-    return burst.measurement_function(trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position)
+    return burst.measurement_function(
+        trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position
+    )
 
 
 def _predictions(burst: Burst, trajectory: np.ndarray) -> np.ndarray:
@@ -75,7 +82,9 @@ def _whiteners(burst: Burst, trajectory: np.ndarray) -> np.ndarray:
     return trajectory_whitener(burst, trajectory[..., 0:3], trajectory[..., 3:6])
 
 
-def whitened_residuals(burst: Burst, model: MotionModel, states: np.ndarray, white: np.ndarray | None = None) -> np.ndarray:
+def whitened_residuals(
+    burst: Burst, model: MotionModel, states: np.ndarray, white: np.ndarray | None = None
+) -> np.ndarray:
     """W_k (z_k - h(x(t_k)) - b) of each state (C, n) at every sample: (C, K, 2), the RD taken as the
     burst says (:func:`~aasl_gym.initializers.periodic_residual`), ``white`` each trajectory's own
     R_eff whitener unless given."""
@@ -104,12 +113,15 @@ def _jacobian(burst, model, states, white) -> np.ndarray:
     z = _measure(burst, trajectory)
     predicted = (z + trajectory[..., -2:])[: 2 * moving * count].reshape(2, moving, count, -1, 2)
     differences = list(predicted[0] - predicted[1])
-    unbiased = z[2 * moving * count:]
+    unbiased = z[2 * moving * count :]
     for j in range(moving, dim):
         bias_shift = STEP * np.eye(dim)[j]
         ahead, behind = (unbiased + _trajectory(burst, model, states + sign * bias_shift)[..., -2:] for sign in (1, -1))
         differences.append(ahead - behind)
-    columns = [whiten(white, periodic_residual(difference, burst) / (2 * STEP)).reshape(count, -1) for difference in differences]
+    columns = [
+        whiten(white, periodic_residual(difference, burst) / (2 * STEP)).reshape(count, -1)
+        for difference in differences
+    ]
     return np.stack(columns, axis=-1)
 
 
@@ -123,8 +135,15 @@ def _normal_matrix(jacobian: np.ndarray, weights: np.ndarray, prior_sd: np.ndarr
     return np.einsum("cmi,cm,cmj->cij", jacobian, weights, jacobian) + np.diag(1 / prior_sd**2)
 
 
-def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean: np.ndarray, prior_sd: np.ndarray,
-               robust: bool = False, iterations: int = 8) -> WindowFit:
+def fit_window(
+    burst: Burst,
+    model: MotionModel,
+    states: np.ndarray,
+    prior_mean: np.ndarray,
+    prior_sd: np.ndarray,
+    robust: bool = False,
+    iterations: int = 8,
+) -> WindowFit:
     """Levenberg-Marquardt from each of ``states`` (C, n), the filter's layout at ``burst.times[-1]``.
 
     ``prior_mean`` (C, n) or (n,), ``prior_sd`` (n,), ``np.inf`` where a component has no prior. The
@@ -146,7 +165,9 @@ def fit_window(burst: Burst, model: MotionModel, states: np.ndarray, prior_mean:
         # The residuals fall as the predictions rise: their gradient carries -J.
         gradient = prior / prior_sd - np.einsum("cmi,cm->ci", jacobian, weights * measurement)
         scale = np.diagonal(normal, axis1=1, axis2=2)
-        step = -np.linalg.solve(normal + damping[:, None, None] * scale[:, None, :] * np.eye(model.dim), gradient[..., None])[..., 0]
+        step = -np.linalg.solve(
+            normal + damping[:, None, None] * scale[:, None, :] * np.eye(model.dim), gradient[..., None]
+        )[..., 0]
         step *= np.minimum(1.0, MAX_POSITION_STEP / np.maximum(np.linalg.norm(step[:, 0:3], axis=1), 1e-12))[:, None]
         trial = states + step
         trial_white = _whiteners(burst, _trajectory(burst, model, trial))

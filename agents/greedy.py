@@ -32,14 +32,20 @@ class GreedyInformationPolicy:
         if seen.time < self.last_time:  # a new episode
             self.planner.reset()
         elif seen.time > self.last_time:  # the env measured once more since the last call
-            self.planner.observe(seen.initialized, seen.estimate_position, seen.estimate_velocity,
-                                 seen.receiver_position, seen.receiver_velocity)
+            self.planner.observe(
+                seen.initialized,
+                seen.estimate_position,
+                seen.estimate_velocity,
+                seen.receiver_position,
+                seen.receiver_velocity,
+            )
         self.last_time = seen.time
         if seen.initialized:
             command = self.planner.command(seen.estimate_position, seen.estimate_velocity, seen.receiver_position)
         else:  # the helix, as AASL-Greedy-v0 flies before the filter starts
-            command = patrol_command("helix", seen.time, seen.receiver_position, self.config.patrol,
-                                     self.patrol_geometry)
+            command = patrol_command(
+                "helix", seen.time, seen.receiver_position, self.config.patrol, self.patrol_geometry
+            )
         return (command / self.config.receiver.max_speed).astype(np.float32)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):

@@ -3,12 +3,15 @@ benchmarks share."""
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 
-def play_episode(env, policy, seed: int, on_step: Callable[[float, dict[str, Any]], None] | None = None) -> dict[str, Any]:
+def play_episode(
+    env, policy, seed: int, on_step: Callable[[float, dict[str, Any]], None] | None = None
+) -> dict[str, Any]:
     """Run ``policy`` (anything with SB3's ``predict``, deterministic, its recurrent state carried) on
     ``env`` from ``reset(seed=seed)`` to the end; ``on_step(reward, info)`` sees every step. Returns the
     last step's info (which carries the episode's metrics)."""

@@ -16,8 +16,9 @@ from __future__ import annotations
 import logging
 import pickle
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
@@ -39,7 +40,9 @@ def algorithm_class(name: str):
         try:
             from sb3_contrib import RecurrentPPO
         except ImportError as exc:
-            raise ImportError("recurrent-ppo needs sb3-contrib (a dependency of aasl-gym): pip install sb3-contrib") from exc
+            raise ImportError(
+                "recurrent-ppo needs sb3-contrib (a dependency of aasl-gym): pip install sb3-contrib"
+            ) from exc
         return RecurrentPPO
     import stable_baselines3
 
@@ -100,7 +103,9 @@ def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
             with open(stats, "rb") as handle:
                 normalizer = pickle.load(handle)
         except Exception as exc:
-            raise ValueError(f"model {spec!r}: its statistics {stats} could not be loaded ({type(exc).__name__}: {exc})") from exc
+            raise ValueError(
+                f"model {spec!r}: its statistics {stats} could not be loaded ({type(exc).__name__}: {exc})"
+            ) from exc
         if not hasattr(normalizer, "normalize_obs"):
             raise ValueError(f"model {spec!r}: {stats} holds no VecNormalize statistics")
         normalizer.training = False
@@ -115,8 +120,14 @@ class FixedSeedEvaluation(BaseCallback):
     compare; keeps the best model (by mean return) in ``out/best/``, rewrites the evaluations so far to
     ``out/evaluations.csv`` (the learning curve, with or without TensorBoard) and hands ``report`` one line."""
 
-    def __init__(self, out: Path, make_env: Callable[[], Any], eval_seeds: list[int], eval_every: int,
-                 report: Callable[[str], None]):
+    def __init__(
+        self,
+        out: Path,
+        make_env: Callable[[], Any],
+        eval_seeds: list[int],
+        eval_every: int,
+        report: Callable[[str], None],
+    ):
         super().__init__()
         self.out, self.eval_seeds, self.eval_every, self.report = out, eval_seeds, eval_every, report
         self.env = make_env()
@@ -152,7 +163,8 @@ class FixedSeedEvaluation(BaseCallback):
         returns, successes, times = [], [], []
         for seed in self.eval_seeds:
             rewards = []
-            info = play_episode(self.env, policy, seed, on_step=lambda reward, _: rewards.append(reward))
+            # The closure runs within this iteration (play_episode calls it), so it sees this episode's list.
+            info = play_episode(self.env, policy, seed, on_step=lambda reward, _: rewards.append(reward))  # noqa: B023
             returns.append(sum(rewards))
             successes.append(bool(info["success"]["1.0"]))
             times.append(float(info["convergence_time"]))
@@ -200,8 +212,15 @@ class EpisodeMetrics(BaseCallback):
         self.ended = []
 
 
-def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds: list[int], eval_every: int,
-                   checkpoint_every: int, report: Callable[[str], None]) -> list[BaseCallback]:
+def make_callbacks(
+    out: Path,
+    algo: str,
+    make_env: Callable[[], Any],
+    eval_seeds: list[int],
+    eval_every: int,
+    checkpoint_every: int,
+    report: Callable[[str], None],
+) -> list[BaseCallback]:
     """The training callbacks: evaluation on fixed seeds (keeping the best model), atomic checkpoints, and
     the training episodes' metrics in the log.
 
@@ -209,8 +228,11 @@ def make_callbacks(out: Path, algo: str, make_env: Callable[[], Any], eval_seeds
     ``report`` receives one line per evaluation (the CLI prints it); the evaluations so far are also
     rewritten to ``out/evaluations.csv`` after each one (the learning curve, with or without TensorBoard).
     """
-    return [FixedSeedEvaluation(out, make_env, eval_seeds, eval_every, report),
-            AtomicCheckpoint(out, algo, checkpoint_every), EpisodeMetrics()]
+    return [
+        FixedSeedEvaluation(out, make_env, eval_seeds, eval_every, report),
+        AtomicCheckpoint(out, algo, checkpoint_every),
+        EpisodeMetrics(),
+    ]
 
 
 def _tensorboard_log(out: Path) -> str | None:
@@ -222,8 +244,15 @@ def _tensorboard_log(out: Path) -> str | None:
     return str(out / "tb")
 
 
-def train(algo: str, config: EnvConfig, schedule: Schedule, hyperparameters: dict[str, Any], seed: int, out: Path,
-          report: Callable[[str], None]) -> Path:
+def train(
+    algo: str,
+    config: EnvConfig,
+    schedule: Schedule,
+    hyperparameters: dict[str, Any],
+    seed: int,
+    out: Path,
+    report: Callable[[str], None],
+) -> Path:
     """Train ``algo`` on ``schedule.env`` with ``config`` and save ``out/model.zip`` (with its normalization
     statistics), besides the checkpoints, best model and learning curve of :func:`make_callbacks`; returns
     the model's path. ``report`` receives the opening line and one per evaluation. Raises
@@ -232,26 +261,47 @@ def train(algo: str, config: EnvConfig, schedule: Schedule, hyperparameters: dic
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import SubprocVecEnv, VecNormalize
 
-    env_id, env_kwargs = f"aasl_gym:{schedule.env}", {"config": config}
+    env_id = f"aasl_gym:{schedule.env}"
+    env_kwargs: dict[str, Any] = {"config": config}
     vec_cls = SubprocVecEnv if schedule.n_envs > 1 else None
     envs = make_vec_env(env_id, n_envs=schedule.n_envs, seed=seed, env_kwargs=env_kwargs, vec_env_cls=vec_cls)
     try:
         if schedule.normalize_observation or schedule.normalize_reward:
-            envs = VecNormalize(envs, norm_obs=schedule.normalize_observation, norm_reward=schedule.normalize_reward,
-                                gamma=float(hyperparameters.get("gamma", 0.99)))
+            envs = VecNormalize(
+                envs,
+                norm_obs=schedule.normalize_observation,
+                norm_reward=schedule.normalize_reward,
+                gamma=float(hyperparameters.get("gamma", 0.99)),
+            )
         cls = algorithm_class(algo)
         policy = "MlpLstmPolicy" if algo == "recurrent-ppo" else "MlpPolicy"
         try:
-            model = cls(policy, envs, seed=seed, verbose=0, tensorboard_log=_tensorboard_log(out), device="auto",
-                        **hyperparameters)
+            model = cls(
+                policy,
+                envs,
+                seed=seed,
+                verbose=0,
+                tensorboard_log=_tensorboard_log(out),
+                device="auto",
+                **hyperparameters,
+            )
         except TypeError as exc:
             raise ConfigError(f"section '{algo}' has a keyword {cls.__name__} does not take ({exc})") from exc
         model.aasl_env_id = schedule.env  # saved with every checkpoint, so evaluation runs the policy in its env
-        callbacks = make_callbacks(out, algo, lambda: gym.make(env_id, **env_kwargs), schedule.eval_seeds,
-                                   schedule.eval_every, schedule.checkpoint_every, report)
-        report(f"training {algo} on {schedule.env} for {schedule.timesteps:,} steps with {schedule.n_envs} envs -> "
-               f"{out}; evaluating every {schedule.eval_every:,} steps on seeds {schedule.eval_seeds[0]}-"
-               f"{schedule.eval_seeds[-1]}")
+        callbacks = make_callbacks(
+            out,
+            algo,
+            lambda: gym.make(env_id, **env_kwargs),
+            schedule.eval_seeds,
+            schedule.eval_every,
+            schedule.checkpoint_every,
+            report,
+        )
+        report(
+            f"training {algo} on {schedule.env} for {schedule.timesteps:,} steps with {schedule.n_envs} envs -> "
+            f"{out}; evaluating every {schedule.eval_every:,} steps on seeds {schedule.eval_seeds[0]}-"
+            f"{schedule.eval_seeds[-1]}"
+        )
         model.learn(total_timesteps=schedule.timesteps, callback=callbacks, progress_bar=True)
         return save_model(model, out / "model.zip")
     finally:

@@ -9,9 +9,10 @@ what is allowed. The keyword arguments are checked by the algorithm that takes t
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import yaml
 
@@ -42,14 +43,17 @@ class Schedule:
         for name in ("timesteps", "n_envs", "eval_every", "eval_episodes", "checkpoint_every"):
             value = getattr(self, name)
             _check(isinstance(value, int) and value >= 1, f"schedule.{name}", f"must be an integer >= 1, got {value!r}")
-        _check(isinstance(self.eval_seed, int) and self.eval_seed >= 0, "schedule.eval_seed",
-               f"must be an integer >= 0, got {self.eval_seed!r}")
+        _check(
+            isinstance(self.eval_seed, int) and self.eval_seed >= 0,
+            "schedule.eval_seed",
+            f"must be an integer >= 0, got {self.eval_seed!r}",
+        )
 
     @property
     def eval_seeds(self) -> list[int]:
         return list(range(self.eval_seed, self.eval_seed + self.eval_episodes))
 
-    def replace(self, **changes: Any) -> "Schedule":
+    def replace(self, **changes: Any) -> Schedule:
         """A copy with some fields changed (``None`` keeps a field), validated again."""
         return dataclasses.replace(self, **{name: value for name, value in changes.items() if value is not None})
 
@@ -78,8 +82,9 @@ def load_training(path: str | Path, algo: str) -> tuple[Schedule, dict[str, Any]
         raise ConfigError(f"{path} is not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or "schedule" not in data or algo not in data:
         raise ConfigError(f"{path} needs a 'schedule' section and a '{algo}' section")
-    _check(isinstance(data[algo], Mapping), algo,
-           f"must be a mapping of {algo}'s keyword arguments, got {data[algo]!r}")
+    _check(
+        isinstance(data[algo], Mapping), algo, f"must be a mapping of {algo}'s keyword arguments, got {data[algo]!r}"
+    )
     return schedule_from_dict(data["schedule"]), dict(data[algo])
 
 
@@ -87,5 +92,12 @@ def training_record(algo: str, seed: int, schedule: Schedule, run: Schedule, hyp
     """What a run's ``hyperparameters.yaml`` holds: the algorithm, env, seed, steps and envs it ran with
     (``run``: the schedule with the command line's choices), the schedule as the file gives it, and the
     algorithm's keyword arguments."""
-    return {"algo": algo, "env": run.env, "seed": seed, "timesteps": run.timesteps, "n_envs": run.n_envs,
-            "schedule": to_dict(schedule), algo: hyperparameters}
+    return {
+        "algo": algo,
+        "env": run.env,
+        "seed": seed,
+        "timesteps": run.timesteps,
+        "n_envs": run.n_envs,
+        "schedule": to_dict(schedule),
+        algo: hyperparameters,
+    }

@@ -21,10 +21,10 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from aasl_gym import frontend, synthesis  # noqa: E402
-from bench_speed import env_step_rates  # noqa: E402  (run from the repository root as a script)
+from aasl_gym import frontend, synthesis
+from bench_speed import env_step_rates  # run as a script: benchmarks/ is on sys.path
 
 FIXED = np.array([0.0, 0.0, -0.96])
 SOURCE, SOURCE_VELOCITY = np.array([8.0, -6.0, -12.0]), np.array([0.5, 0.2, 0.0])
@@ -51,10 +51,27 @@ def main() -> None:
     waveform = synthesis.Waveform.random("tone", rng)
     for reflections in (False, True):
         paths = synthesis.path_sources(SOURCE, SOURCE_VELOCITY, reflections, 60.0, -0.9, 0.3)
-        for label, baseband, rate in (("fast (baseband, 10 kHz)", True, 10_000.0), ("hardware (real, 200 kHz)", False, 200_000.0)):
+        for label, baseband, rate in (
+            ("fast (baseband, 10 kHz)", True, 10_000.0),
+            ("hardware (real, 200 kHz)", False, 200_000.0),
+        ):
+
             def synthesize():
-                return synthesis.synthesize(waveform, 3.0, FRAME + 2 * GUARD, rate, baseband, paths, MOBILE, MOBILE_VELOCITY,
-                                            FIXED, 1500.0, 140.0, 80.0, rng)
+                return synthesis.synthesize(
+                    waveform,
+                    3.0,
+                    FRAME + 2 * GUARD,
+                    rate,
+                    baseband,
+                    paths,
+                    MOBILE,
+                    MOBILE_VELOCITY,
+                    FIXED,
+                    1500.0,
+                    140.0,
+                    80.0,
+                    rng,
+                )
 
             channel = synthesize()
             envelope = frontend.envelopes(channel, waveform, 10_000.0, GUARD)
@@ -62,7 +79,9 @@ def main() -> None:
             costs = {
                 "synthesis": median_ms(synthesize, args.repeats),
                 "filtering": median_ms(lambda: frontend.envelopes(channel, waveform, 10_000.0, GUARD), args.repeats),
-                "correlation": median_ms(lambda: frontend.delay_track(envelope, waveform, 0.03, noise_level_db=80.0), args.repeats),
+                "correlation": median_ms(
+                    lambda: frontend.delay_track(envelope, waveform, 0.03, noise_level_db=80.0), args.repeats
+                ),
                 "TDOA + FDOA": median_ms(lambda: frontend.tdoa_fdoa(track, 1500.0), args.repeats),
             }
             line = ", ".join(f"{name} {cost:.2f} ms" for name, cost in costs.items())
@@ -70,22 +89,38 @@ def main() -> None:
             if not baseband:
                 rows = np.array([channel.mobile, channel.fixed])  # laid out as the filtering lays them out
                 # Timed in alternation, so that both see the machine in the same state; the median ratio.
-                pairs = [(median_ms(lambda: frontend.envelopes(channel, waveform, 10_000.0, GUARD), 1),
-                          median_ms(lambda: [np.fft.rfft(row) for row in rows], 1)) for _ in range(5 * args.repeats)]
+                pairs = [
+                    (
+                        median_ms(lambda: frontend.envelopes(channel, waveform, 10_000.0, GUARD), 1),
+                        median_ms(lambda: [np.fft.rfft(row) for row in rows], 1),
+                    )
+                    for _ in range(5 * args.repeats)
+                ]
                 ratio = statistics.median(filtering / ffts for filtering, ffts in pairs)
                 ffts = statistics.median(ffts for _, ffts in pairs)
                 print(f"    hardware filtering / its unavoidable FFTs ({ffts:.2f} ms): {ratio:.1f}x   [goal <= 2]")
-    print("env steps/s in signal mode (cv source, helix): all steps | the typical step (median: front end + UKF bank, "
-          "without the steps that run LC-MAP)")
+    print(
+        "env steps/s in signal mode (cv source, helix): all steps | the typical step (median: front end + UKF bank, "
+        "without the steps that run LC-MAP)"
+    )
     for label, kwargs in (
         ("free field, fast path", dict(reflections=False, multipath="none", config={"signal": {"path": "fast"}})),
-        ("free field, fast path, one UKF, no re-seeding", dict(reflections=False, multipath="none",
-                                                              config={"initializer": {"hypotheses": 1, "reseed_interval": 0.0}})),
-        ("free field, hardware path", dict(reflections=False, multipath="none", config={"signal": {"path": "hardware"}})),
+        (
+            "free field, fast path, one UKF, no re-seeding",
+            dict(
+                reflections=False, multipath="none", config={"initializer": {"hypotheses": 1, "reseed_interval": 0.0}}
+            ),
+        ),
+        (
+            "free field, hardware path",
+            dict(reflections=False, multipath="none", config={"signal": {"path": "hardware"}}),
+        ),
         ("reflections on, phasor filter, fast path (default world)", dict(config={"signal": {"path": "fast"}})),
     ):
-        rates = [env_step_rates("AASL-Helix-v0", args.episodes, source_motion="cv", measurement="signal", **kwargs)
-                 for _ in range(max(1, args.repeats // 3))]
+        rates = [
+            env_step_rates("AASL-Helix-v0", args.episodes, source_motion="cv", measurement="signal", **kwargs)
+            for _ in range(max(1, args.repeats // 3))
+        ]
         overall, typical = (statistics.median(rate[i] for rate in rates) for i in (0, 1))
         print(f"  {label}: {overall:,.0f} | {typical:,.0f}   [goal >= 1,000 on the fast path]")
 

@@ -20,14 +20,14 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as FilterpyUKF  # noqa: E402
+import gymnasium as gym
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as FilterpyUKF
 
-import aasl_gym  # noqa: E402,F401
-from aasl_gym.config import FilterConfig  # noqa: E402
-from aasl_gym.filters import ConstantVelocity, UnscentedKalmanFilter  # noqa: E402
-from aasl_gym.measurement_models import direct_measurement  # noqa: E402
+import aasl_gym  # noqa: F401
+from aasl_gym.config import FilterConfig
+from aasl_gym.filters import ConstantVelocity, UnscentedKalmanFilter
+from aasl_gym.measurement_models import direct_measurement
 
 FIXED = np.array([0.0, 0, -0.96])
 R = np.diag([0.05**2, 0.02**2])
@@ -57,7 +57,9 @@ def time_ours(n: int) -> float:
 def time_filterpy(n: int) -> float:
     model = ConstantVelocity(FilterConfig())
     points = MerweScaledSigmaPoints(8, alpha=0.5, beta=2.0, kappa=0.0)
-    ukf = FilterpyUKF(dim_x=8, dim_z=2, dt=0.2, fx=lambda x, dt: model.transition(x[None], dt)[0], hx=None, points=points)
+    ukf = FilterpyUKF(
+        dim_x=8, dim_z=2, dt=0.2, fx=lambda x, dt: model.transition(x[None], dt)[0], hx=None, points=points
+    )
     ukf.x, ukf.P, ukf.Q = np.array([7.0, -4, -9, 0, 0, 0, 0, 0]), np.eye(8), model.process_noise(0.2)
     z, mobile, velocity = measurement_sequence(n)
     start = time.perf_counter()
@@ -93,26 +95,44 @@ def main() -> None:
         ("default world (reflections, phasor filter)", dict(source_motion="cv")),
         ("free field, direct-path filter", dict(reflections=False, multipath="none", source_motion="cv")),
     ):
-        rates = [env_step_rates("AASL-Helix-v0", args.episodes, measurement="signal", **kwargs) for _ in range(args.repeats)]
+        rates = [
+            env_step_rates("AASL-Helix-v0", args.episodes, measurement="signal", **kwargs) for _ in range(args.repeats)
+        ]
         whole, typical = (statistics.median(column) for column in zip(*rates))
-        print(f"env steps/s, signal mode, cv source, {label}: whole episodes {whole:,.0f} "
-              f"(typical step {typical:,.0f})   [goal >= 1,000 whole]")
+        print(
+            f"env steps/s, signal mode, cv source, {label}: whole episodes {whole:,.0f} "
+            f"(typical step {typical:,.0f})   [goal >= 1,000 whole]"
+        )
     if args.signal_only:
         return
     ours = statistics.median(time_ours(2000) for _ in range(args.repeats))
     reference = statistics.median(time_filterpy(500) for _ in range(args.repeats))
-    print(f"UKF predict+update (8-state CV): ours {ours * 1e3:.3f} ms, filterpy {reference * 1e3:.3f} ms, "
-          f"ratio {reference / ours:.1f}x   [goal <= 0.1 ms]")
+    print(
+        f"UKF predict+update (8-state CV): ours {ours * 1e3:.3f} ms, filterpy {reference * 1e3:.3f} ms, "
+        f"ratio {reference / ours:.1f}x   [goal <= 0.1 ms]"
+    )
     for label, kwargs in (
         ("free field, direct-path filter", dict(reflections=False, multipath="none", source_motion="static")),
         ("free field, direct-path filter, cv source", dict(reflections=False, multipath="none", source_motion="cv")),
-        ("free field, cv source, no LC-MAP re-seeding", dict(reflections=False, multipath="none", source_motion="cv",
-                                                            config={"initializer": {"reseed_interval": 0.0}})),
-        ("free field, ctrv source and filter", dict(reflections=False, multipath="none", source_motion="ctrv", filter_model="ctrv")),
+        (
+            "free field, cv source, no LC-MAP re-seeding",
+            dict(
+                reflections=False,
+                multipath="none",
+                source_motion="cv",
+                config={"initializer": {"reseed_interval": 0.0}},
+            ),
+        ),
+        (
+            "free field, ctrv source and filter",
+            dict(reflections=False, multipath="none", source_motion="ctrv", filter_model="ctrv"),
+        ),
         ("reflections on, phasor filter (default)", dict(source_motion="cv")),
     ):
-        rate = statistics.median(env_step_rates("AASL-Helix-v0", args.episodes, measurement="geometric", **kwargs)[0]
-                                 for _ in range(max(1, args.repeats // 2)))
+        rate = statistics.median(
+            env_step_rates("AASL-Helix-v0", args.episodes, measurement="geometric", **kwargs)[0]
+            for _ in range(max(1, args.repeats // 2))
+        )
         print(f"env steps/s, geometric, {label}: {rate:,.0f}   [goal >= 5,000]")
 
 

@@ -65,7 +65,8 @@ def main() -> None:
             converged = sum(np.isfinite(row[2]) for row in group)
             print(
                 f"{world:7s} {motion:6s} converged {converged}/{len(group)}, {len(nees)} steps:"
-                f" NEES in 95 % interval {share(nees, NEES_BOUNDS):.0%} (mean {np.mean(nees) if nees else np.nan:.1f}, 3 expected),"
+                f" NEES in 95 % interval {share(nees, NEES_BOUNDS):.0%}"
+                f" (mean {np.mean(nees) if nees else np.nan:.1f}, 3 expected),"
                 f" NIS {share(nis, NIS_BOUNDS):.0%} (mean {np.mean(nis) if nis else np.nan:.1f}, 2 expected)"
             )
 

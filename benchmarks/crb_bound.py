@@ -1,4 +1,4 @@
-"""How well could *any* unbiased estimator do? The Cramer-Rao bound along each study episode.
+r"""How well could *any* unbiased estimator do? The Cramer-Rao bound along each study episode.
 
 For every seeded episode of the initializer study (same seeds, same helix, same source), the source's
 trajectory is a function of its motion parameters theta = [p(0), v(0), a (ca) or omega (ctrv), b_p].
@@ -19,7 +19,8 @@ Reported per motion: the share of episodes whose bound on the position error sd 
 ``--target`` metres and stays there to the end, and the median time it first does. An estimator whose
 1 m success rate is near that share is close to what the geometry allows.
 
-    python benchmarks/crb_bound.py --motions static cv ca ctrv --episodes 100 --seed 1000 --config configs/initializer_study.yaml
+    python benchmarks/crb_bound.py --motions static cv ca ctrv --episodes 100 --seed 1000 \
+        --config configs/initializer_study.yaml
     python benchmarks/crb_bound.py --model matched --config configs/default.yaml --seed 710000 --target 1.0
 """
 
@@ -35,7 +36,12 @@ from aasl_gym.config import EnvConfig, load_config
 from aasl_gym.env import AASLEnv
 from aasl_gym.io import atomic_write_text
 from aasl_gym.measurement_models import (
-    Propagation, model_snr, multipath_measurement, receiver_jacobian, receiver_noise, signal_noise_sd,
+    Propagation,
+    model_snr,
+    multipath_measurement,
+    receiver_jacobian,
+    receiver_noise,
+    signal_noise_sd,
 )
 from aasl_gym.motion import SourceState, advance_source
 
@@ -66,8 +72,14 @@ def multipath_gain(propagation: Propagation, source: np.ndarray, receiver: np.nd
     return np.abs(factor)
 
 
-def matched_weights(config: EnvConfig, propagation: Propagation, truth: np.ndarray, mobile: np.ndarray,
-                    mobile_velocity: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+def matched_weights(
+    config: EnvConfig,
+    propagation: Propagation,
+    truth: np.ndarray,
+    mobile: np.ndarray,
+    mobile_velocity: np.ndarray,
+    fixed: np.ndarray,
+) -> np.ndarray:
     """R_eff^-1 (steps, 2, 2) of the world's own model along the true track ``truth`` (steps, 6)."""
     model = "phasor" if config.world.reflections else "none"
 
@@ -75,11 +87,15 @@ def matched_weights(config: EnvConfig, propagation: Propagation, truth: np.ndarr
         return multipath_measurement(model, propagation, p, v, p_m, v_m, p_f)
 
     if config.measurement.mode == "signal":
-        gains = [multipath_gain(propagation, truth[:, :3], r) if config.world.reflections else 1.0 for r in (mobile, fixed)]
+        gains = [
+            multipath_gain(propagation, truth[:, :3], r) if config.world.reflections else 1.0 for r in (mobile, fixed)
+        ]
         snr = [model_snr(config, truth[:, :3], r) * g**2 for r, g in zip((mobile, fixed), gains)]
         sd = signal_noise_sd(config, snr[0], snr[1])
     else:
-        sd = np.broadcast_to([config.measurement.range_difference_sd, config.measurement.range_rate_difference_sd], (len(truth), 2))
+        sd = np.broadcast_to(
+            [config.measurement.range_difference_sd, config.measurement.range_rate_difference_sd], (len(truth), 2)
+        )
     acoustic = np.einsum("ki,ij->kij", sd**2, np.eye(2))
     navigation = np.zeros_like(acoustic)
     if config.filter.compensate_navigation:
@@ -100,9 +116,16 @@ def episode_bound(env: AASLEnv, seed: int, model: str = "direct") -> np.ndarray:
         env.step(np.zeros(3))
         mobile[k], mobile_velocity[k] = env.receiver_position, env.receiver_velocity
     kind = source.kind
-    kinematic = np.concatenate([source.position, source.velocity] + ([source.acceleration] if kind == "ca" else [[source.turn_rate]] if kind == "ctrv" else []))
+    kinematic = np.concatenate(
+        [source.position, source.velocity]
+        + ([source.acceleration] if kind == "ca" else [[source.turn_rate]] if kind == "ctrv" else [])
+    )
     ini = env.config.initializer
-    prior_sd = [ini.position_sd] * 3 + [ini.velocity_prior_sd] * 3 + ([0.02] * 3 if kind == "ca" else [0.05] if kind == "ctrv" else [])
+    prior_sd = (
+        [ini.position_sd] * 3
+        + [ini.velocity_prior_sd] * 3
+        + ([0.02] * 3 if kind == "ca" else [0.05] if kind == "ctrv" else [])
+    )
     n = len(kinematic)
 
     config = env.config
@@ -111,11 +134,15 @@ def episode_bound(env: AASLEnv, seed: int, model: str = "direct") -> np.ndarray:
 
     def trajectory(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         truth = _simulate(env, _unpack(kind, theta, source), steps)
-        z = multipath_measurement(world_model, propagation, truth[:, :3], truth[:, 3:], mobile, mobile_velocity, env.fixed)
+        z = multipath_measurement(
+            world_model, propagation, truth[:, :3], truth[:, 3:], mobile, mobile_velocity, env.fixed
+        )
         return truth[:, :3], z
 
     if model == "matched":
-        weights = matched_weights(config, propagation, _simulate(env, source, steps), mobile, mobile_velocity, env.fixed)
+        weights = matched_weights(
+            config, propagation, _simulate(env, source, steps), mobile, mobile_velocity, env.fixed
+        )
     else:
         weights = np.broadcast_to(np.linalg.inv(env.filter_covariance), (steps, 2, 2))
 
@@ -155,17 +182,26 @@ def print_table(header: list[str], rows, out: str | None) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=["static", "cv", "ca", "ctrv"])
+    parser.add_argument(
+        "--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=["static", "cv", "ca", "ctrv"]
+    )
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--config", default="configs/initializer_study.yaml")
     parser.add_argument("--target", type=float, default=0.5, help="bound on the position error sd, m")
-    parser.add_argument("--model", choices=["direct", "matched"], default="direct",
-                        help="measurement model: the direct path, or the world's own (phasor with reflections)")
+    parser.add_argument(
+        "--model",
+        choices=["direct", "matched"],
+        default="direct",
+        help="measurement model: the direct path, or the world's own (phasor with reflections)",
+    )
     parser.add_argument("--out", default=None, help="markdown file for the table")
     args = parser.parse_args(argv)
     base = load_config(args.config)
-    header = [f"| motion | episodes | bound < {args.target} m to the end | median first time (s) |", "|---|---|---|---|"]
+    header = [
+        f"| motion | episodes | bound < {args.target} m to the end | median first time (s) |",
+        "|---|---|---|---|",
+    ]
 
     def rows():
         for motion in args.motions:
@@ -178,9 +214,11 @@ def main(argv: list[str] | None = None) -> None:
                 times.append((last_above + 2) * env.dt if last_above + 1 < len(bound) else np.inf)
             times = np.array(times)
             reached = np.isfinite(times)
-            yield f"| {motion} | {len(times)} | {reached.mean():.0%} | {np.median(times[reached]) if reached.any() else float('nan'):.1f} |"
+            median = np.median(times[reached]) if reached.any() else float("nan")
+            yield f"| {motion} | {len(times)} | {reached.mean():.0%} | {median:.1f} |"
 
     print_table(header, rows(), args.out)
+
 
 if __name__ == "__main__":
     main()

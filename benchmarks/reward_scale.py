@@ -20,15 +20,20 @@ sys.path.insert(0, str(ROOT))  # agents/ lives at the repository root
 
 from aasl_gym.env import AASLEnv  # noqa: E402
 from aasl_gym.rewards import TERMS  # noqa: E402
+from aasl_gym.study.jobs import MATCHED_FILTER  # noqa: E402  (source motion -> the filter model matched to it)
 from agents import make_policy  # noqa: E402
 from agents.rollout import play_episode  # noqa: E402
-from aasl_gym.study.jobs import MATCHED_FILTER  # noqa: E402  (source motion -> the filter model matched to it)
 
 MOTIONS = ("static", "cv", "ca", "ctrv")
 
 
 def episode_sums(policy_name: str, motion: str, seed: int) -> dict[str, float]:
-    env = AASLEnv(ROOT / "configs" / "initializer_study.yaml", source_motion=motion, measurement="signal", filter_model=MATCHED_FILTER[motion])
+    env = AASLEnv(
+        ROOT / "configs" / "initializer_study.yaml",
+        source_motion=motion,
+        measurement="signal",
+        filter_model=MATCHED_FILTER[motion],
+    )
     sums = dict.fromkeys(TERMS, 0.0)
 
     def add(_, info):
@@ -47,7 +52,11 @@ def main() -> None:
     args = parser.parse_args()
     columns = {}
     for policy in args.policies:
-        episodes = [episode_sums(policy, motion, seed) for motion in MOTIONS for seed in range(args.seed, args.seed + args.seeds)]
+        episodes = [
+            episode_sums(policy, motion, seed)
+            for motion in MOTIONS
+            for seed in range(args.seed, args.seed + args.seeds)
+        ]
         columns[policy] = {name: np.array([e[name] for e in episodes]) for name in TERMS}
         print(f"{policy}: {len(episodes)} episodes", file=sys.stderr)
     print("| term | " + " | ".join(args.policies) + " |")

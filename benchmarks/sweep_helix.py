@@ -16,10 +16,9 @@ import itertools
 
 import numpy as np
 
-from crb_bound import episode_bound, print_table
-
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
+from crb_bound import episode_bound, print_table
 
 
 def time_to_bound(env: AASLEnv, seed: int, target: float) -> float:
@@ -37,19 +36,29 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--target", type=float, default=0.5, help="bound on the position error, m")
     parser.add_argument("--out", default=None, help="markdown file for the table")
     args = parser.parse_args(argv)
-    header = [f"| radius (m) | depth period (s) | motion | median time to CRB < {args.target} m (s) | reached within the episode |", "|---|---|---|---|---|"]
+    header = [
+        f"| radius (m) | depth period (s) | motion | median time to CRB < {args.target} m (s)"
+        " | reached within the episode |",
+        "|---|---|---|---|---|",
+    ]
 
     def rows():
         for radius, period, motion in itertools.product(args.radii, args.depth_periods, args.motions):
-            config = EnvConfig().replace(patrol={"radius": radius, "depth_period": period},
-                                         receiver={"start_position": [radius, 0.0, -7.0]},
-                                         source={"motion": motion}, world={"reflections": False}, measurement={"mode": "geometric"},
-                                         filter={"multipath": "none"}, initializer={"name": "naive"})
+            config = EnvConfig().replace(
+                patrol={"radius": radius, "depth_period": period},
+                receiver={"start_position": [radius, 0.0, -7.0]},
+                source={"motion": motion},
+                world={"reflections": False},
+                measurement={"mode": "geometric"},
+                filter={"multipath": "none"},
+                initializer={"name": "naive"},
+            )
             env = AASLEnv(config, patrol="helix")
             times = np.array([time_to_bound(env, seed, args.target) for seed in range(args.episodes)])
             yield f"| {radius:g} | {period:g} | {motion} | {np.median(times):.1f} | {np.mean(np.isfinite(times)):.0%} |"
 
     print_table(header, rows(), args.out)
+
 
 if __name__ == "__main__":
     main()

@@ -43,9 +43,14 @@ def episode(job: tuple) -> dict:
         _, _, terminated, truncated, info = env.step(np.zeros(3))
         done = terminated or truncated
     return {
-        "world": world, "motion": motion, "seed": seed, "success": bool(info["success"]["1.0"]),
-        "final_error": float(info["final_error"]), "reinitializations": int(info["reinitializations"]),
-        "seconds": time.perf_counter() - start, "convergence_time": float(info["convergence_time"]),
+        "world": world,
+        "motion": motion,
+        "seed": seed,
+        "success": bool(info["success"]["1.0"]),
+        "final_error": float(info["final_error"]),
+        "reinitializations": int(info["reinitializations"]),
+        "seconds": time.perf_counter() - start,
+        "convergence_time": float(info["convergence_time"]),
     }
 
 
@@ -56,7 +61,11 @@ def parse_runs(runs: list[str]) -> list[tuple[str, str, int]]:
         world, motions, first, count = run.split(":")
         if world not in WORLDS:
             raise SystemExit(f"{run!r}: unknown world {world!r}; allowed: {list(WORLDS)}")
-        jobs += [(world, motion, seed) for motion in motions.split(",") for seed in range(int(first), int(first) + int(count))]
+        jobs += [
+            (world, motion, seed)
+            for motion in motions.split(",")
+            for seed in range(int(first), int(first) + int(count))
+        ]
     return jobs
 
 

@@ -9,7 +9,9 @@ import aasl_gym  # noqa: F401  (registers the ids)
 from aasl_gym.config import ConfigError, EnvConfig, from_dict, load_config, to_dict
 
 # training.yaml holds SB3 hyperparameters, not an env config
-CONFIGS = sorted(p for p in (Path(__file__).resolve().parent.parent / "configs").glob("*.yaml") if p.name != "training.yaml")
+CONFIGS = sorted(
+    p for p in (Path(__file__).resolve().parent.parent / "configs").glob("*.yaml") if p.name != "training.yaml"
+)
 
 
 def test_defaults_round_trip():
@@ -25,33 +27,51 @@ def test_default_yaml_is_the_default():
     assert load_config(Path(__file__).resolve().parent.parent / "configs" / "default.yaml") == EnvConfig()
 
 
-@pytest.mark.parametrize("data,match", [
-    ({"world": {"depth": 3}}, r"world\.depth: unknown key; allowed keys are"),
-    ({"bogus": {}}, r"bogus: unknown key"),
-    ({"source": {"motion": "zigzag"}}, r"source\.motion: 'zigzag' is not one of \['static', 'cv', 'ca', 'ctrv', 'mixed'\]"),
-    ({"world": {"water_depth": -5}}, r"world\.water_depth: must be a finite number > 0"),
-    ({"world": {"reflections": "yes"}}, r"world\.reflections: must be true or false"),
-    ({"receiver": {"start_position": [1, 2]}}, r"receiver\.start_position: must have 3 entries"),
-    ({"measurement": {"rate": "fast"}}, r"measurement\.rate: must be a number"),
-    ({"filter": {"alpha": 2.0}}, r"filter\.alpha: must lie in \(0, 1\]"),
-    ({"source": {"speed_range": [1.0, 0.5]}}, r"source\.speed_range: must satisfy"),
-    ({"source": {"confined": "no"}}, r"source\.confined: must be true or false"),
-    ({"initializer": {"hypotheses": 0}}, r"initializer\.hypotheses: must be an integer >= 1"),
-    ({"filter": {"prune_log_ratio": 0}}, r"filter\.prune_log_ratio: must be a finite number > 0"),
-    ({"initializer": {"turn_rate_steps": 0}}, r"initializer\.turn_rate_steps: must be an integer >= 1"),
-    ({"initializer": {"max_turn_rate": -0.1}}, r"initializer\.max_turn_rate: must be a finite number > 0"),
-    ({"initializer": {"acceleration_prior_sd": 0}}, r"initializer\.acceleration_prior_sd: must be a finite number > 0"),
-    ({"fault": {"kind": "noisy"}}, r"fault\.kind: 'noisy' is not one of \['none', 'silent', 'clipped', 'dropped'\]"),
-    ({"fault": {"channel": "left"}}, r"fault\.channel: 'left' is not one of"),
-    ({"fault": {"kind": "silent"}, "measurement": {"mode": "geometric"}}, r"fault\.kind: 'silent' corrupts a synthesized frame"),
-    ({"fault": {"duration": float("nan")}}, r"fault\.duration: must be a finite number >= 0"),
-    ({"signal": {"detection_snr_db": float("inf")}}, r"signal\.detection_snr_db: must be finite"),
-    ({"filter": {"sheet_check_interval": -1}}, r"filter\.sheet_check_interval: must be a finite number >= 0"),
-    ({"world": {"noise_level_db": float("nan")}}, r"world\.noise_level_db: must be finite, got nan"),
-    ({"reward": {"success_bonus": float("inf")}}, r"reward\.success_bonus: must be finite"),
-    ({"receiver": {"start_position": [15.0, float("nan"), -7.0]}}, r"receiver\.start_position: must be finite"),
-    ({"filter": {"multipath": "exact"}}, r"filter\.multipath: 'exact' is not one of \['matched', 'none', 'linear', 'phasor'\]"),
-])
+@pytest.mark.parametrize(
+    "data,match",
+    [
+        ({"world": {"depth": 3}}, r"world\.depth: unknown key; allowed keys are"),
+        ({"bogus": {}}, r"bogus: unknown key"),
+        (
+            {"source": {"motion": "zigzag"}},
+            r"source\.motion: 'zigzag' is not one of \['static', 'cv', 'ca', 'ctrv', 'mixed'\]",
+        ),
+        ({"world": {"water_depth": -5}}, r"world\.water_depth: must be a finite number > 0"),
+        ({"world": {"reflections": "yes"}}, r"world\.reflections: must be true or false"),
+        ({"receiver": {"start_position": [1, 2]}}, r"receiver\.start_position: must have 3 entries"),
+        ({"measurement": {"rate": "fast"}}, r"measurement\.rate: must be a number"),
+        ({"filter": {"alpha": 2.0}}, r"filter\.alpha: must lie in \(0, 1\]"),
+        ({"source": {"speed_range": [1.0, 0.5]}}, r"source\.speed_range: must satisfy"),
+        ({"source": {"confined": "no"}}, r"source\.confined: must be true or false"),
+        ({"initializer": {"hypotheses": 0}}, r"initializer\.hypotheses: must be an integer >= 1"),
+        ({"filter": {"prune_log_ratio": 0}}, r"filter\.prune_log_ratio: must be a finite number > 0"),
+        ({"initializer": {"turn_rate_steps": 0}}, r"initializer\.turn_rate_steps: must be an integer >= 1"),
+        ({"initializer": {"max_turn_rate": -0.1}}, r"initializer\.max_turn_rate: must be a finite number > 0"),
+        (
+            {"initializer": {"acceleration_prior_sd": 0}},
+            r"initializer\.acceleration_prior_sd: must be a finite number > 0",
+        ),
+        (
+            {"fault": {"kind": "noisy"}},
+            r"fault\.kind: 'noisy' is not one of \['none', 'silent', 'clipped', 'dropped'\]",
+        ),
+        ({"fault": {"channel": "left"}}, r"fault\.channel: 'left' is not one of"),
+        (
+            {"fault": {"kind": "silent"}, "measurement": {"mode": "geometric"}},
+            r"fault\.kind: 'silent' corrupts a synthesized frame",
+        ),
+        ({"fault": {"duration": float("nan")}}, r"fault\.duration: must be a finite number >= 0"),
+        ({"signal": {"detection_snr_db": float("inf")}}, r"signal\.detection_snr_db: must be finite"),
+        ({"filter": {"sheet_check_interval": -1}}, r"filter\.sheet_check_interval: must be a finite number >= 0"),
+        ({"world": {"noise_level_db": float("nan")}}, r"world\.noise_level_db: must be finite, got nan"),
+        ({"reward": {"success_bonus": float("inf")}}, r"reward\.success_bonus: must be finite"),
+        ({"receiver": {"start_position": [15.0, float("nan"), -7.0]}}, r"receiver\.start_position: must be finite"),
+        (
+            {"filter": {"multipath": "exact"}},
+            r"filter\.multipath: 'exact' is not one of \['matched', 'none', 'linear', 'phasor'\]",
+        ),
+    ],
+)
 def test_bad_values_are_named(data, match):
     with pytest.raises(ConfigError, match=match):
         from_dict(data)
@@ -60,7 +80,7 @@ def test_bad_values_are_named(data, match):
 def test_bad_yaml_file_names_the_file(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("world: {water_depth: [unclosed\n")
-    with pytest.raises(ConfigError, match="bad.yaml: not valid YAML"):
+    with pytest.raises(ConfigError, match=r"bad\.yaml: not valid YAML"):
         load_config(bad)
     wrong = tmp_path / "wrong.yaml"
     wrong.write_text("filter:\n  multipath: echo\n")

@@ -24,7 +24,9 @@ def test_window_chi_square_of_the_truth_is_only_the_velocity_prior(motion_model)
     truth = position + velocity * times[:, None]
     z = direct_measurement(truth, velocity, mobile, mobile_velocity, env.fixed)
     z[:, 0] += 3 * 1.5  # a whole-period offset, held in b_p
-    burst = Burst(times, z, mobile, mobile_velocity, env.fixed, env.filter_covariance, 1.5, tracker.measurement_function)
+    burst = Burst(
+        times, z, mobile, mobile_velocity, env.fixed, env.filter_covariance, 1.5, tracker.measurement_function
+    )
     state = np.zeros(tracker.model.dim)
     state[0:3], state[3:6], state[-2] = truth[-1], velocity, 4.5
     wrong = state.copy()
@@ -92,6 +94,7 @@ def test_the_tracker_recovers_a_lost_source_late_in_the_episode():
     10 m off the (static) source. Its innovations turn inconsistent, the tracker searches the recent
     window again and is back below 1 m within 30 s (tuning seeds 0-5: 14-32 s, one ended 1.01 m off),
     there to stay."""
+
     def lost(info: dict) -> np.ndarray:
         state = np.zeros(8)
         state[0:3] = info["source_position"] + np.array([6.0, -6.0, 5.0])
@@ -132,7 +135,10 @@ def test_a_converged_filter_is_consistent():
                 nees.append(error @ np.linalg.solve(info["position_covariance"], error))
                 nis.append(env.tracker.ukf.nis)
         assert info["position_error"] < 1.0
-    inside = lambda values, dof: np.mean((np.array(values) >= chi2.ppf(0.025, dof)) & (np.array(values) <= chi2.ppf(0.975, dof)))  # noqa: E731
+
+    def inside(values, dof):
+        return np.mean((np.array(values) >= chi2.ppf(0.025, dof)) & (np.array(values) <= chi2.ppf(0.975, dof)))
+
     assert inside(nees, 3) > 0.8 and inside(nis, 2) > 0.85
     assert 1.5 < np.mean(nis) < 2.6
 
@@ -145,7 +151,9 @@ def _neighbouring_sheet(info: dict, wavelength: float) -> np.ndarray:
     q = p.copy()
     for _ in range(5):
         gradient = (q - mobile) / np.linalg.norm(q - mobile) - (q - fixed) / np.linalg.norm(q - fixed)
-        q = q + gradient * (target - direct_measurement(q, v, mobile, info["receiver_velocity"], fixed)[0]) / (gradient @ gradient)
+        q = q + gradient * (target - direct_measurement(q, v, mobile, info["receiver_velocity"], fixed)[0]) / (
+            gradient @ gradient
+        )
     return q
 
 
@@ -182,7 +190,7 @@ def test_a_burst_of_corrupted_frames_does_not_lose_the_source(kind):
         env.reset(seed=seed)
         infos = [env.step(np.zeros(3))[4] for _ in range(600)]
         lost = [info["time"] for info in infos if np.isnan(info["measurement"][0])]
-        assert len(lost) == 25 and 80.0 - 1e-9 <= min(lost) and max(lost) < 85.0
+        assert len(lost) == 25 and min(lost) >= 80.0 - 1e-9 and max(lost) < 85.0
         assert max(info["position_error"] for info in infos[425:]) < 1.0, seed
 
 

@@ -11,10 +11,32 @@ from aasl_gym.study import runner
 
 def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     out = tmp_path / "eval"
-    code = evaluate.main(["--policies", "helix", "circle", "--initializers", "lcmap", "naive", "--motions", "static",
-                          "--episodes", "1", "--reflections", "off", "--out", str(out)])
+    code = evaluate.main(
+        [
+            "--policies",
+            "helix",
+            "circle",
+            "--initializers",
+            "lcmap",
+            "naive",
+            "--motions",
+            "static",
+            "--episodes",
+            "1",
+            "--reflections",
+            "off",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0
-    for name in ("report.md", "results.json", "convergence_time.png", "success_vs_threshold.png", "trajectories_static.png"):
+    for name in (
+        "report.md",
+        "results.json",
+        "convergence_time.png",
+        "success_vs_threshold.png",
+        "trajectories_static.png",
+    ):
         assert (out / name).stat().st_size > 0
     opening = (out / "report.md").read_text().splitlines()[2]
     assert opening.startswith("In short: Static sources:") and "of 1 episode " in opening and "+-98 points" in opening
@@ -23,11 +45,30 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     assert len(results["episodes"]) == 4
     assert "trajectory" not in results["episodes"][0]  # the paths go into the plots, not the results
     row = results["episodes"][0]
-    assert {"policy", "initializer", "motion", "measurement", "seed", "convergence_time", "success", "rmse", "final_error"} <= set(row)
+    assert {
+        "policy",
+        "initializer",
+        "motion",
+        "measurement",
+        "seed",
+        "convergence_time",
+        "success",
+        "rmse",
+        "final_error",
+    } <= set(row)
     assert set(row["success"]) == {"0.1", "0.2", "0.5", "1.0", "2.0", "3.0"}
     summary = results["summary"][0]
-    assert {"policy", "initializer", "motion", "measurement", "n", "success_rate", "mean_convergence_time",
-            "convergence_time_ci95", "rmse_median"} <= set(summary)
+    assert {
+        "policy",
+        "initializer",
+        "motion",
+        "measurement",
+        "n",
+        "success_rate",
+        "mean_convergence_time",
+        "convergence_time_ci95",
+        "rmse_median",
+    } <= set(summary)
     # paired on seeds: every policy x initializer saw the same seed
     assert {r["seed"] for r in results["episodes"]} == {1000}
     assert results["config"]["world"]["reflections"] is False
@@ -35,8 +76,22 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
 
 def test_rows_are_the_same_with_one_worker_and_with_two(tmp_path):
     """Every episode runs from its own seed, so the process pool changes no row."""
-    flags = ["--policies", "helix", "--motions", "static", "cv", "--episodes", "1", "--no-plots", "--measurement", "geometric",
-             "--reflections", "off", "--config", str(tmp_path / "short.yaml")]
+    flags = [
+        "--policies",
+        "helix",
+        "--motions",
+        "static",
+        "cv",
+        "--episodes",
+        "1",
+        "--no-plots",
+        "--measurement",
+        "geometric",
+        "--reflections",
+        "off",
+        "--config",
+        str(tmp_path / "short.yaml"),
+    ]
     (tmp_path / "short.yaml").write_text("episode:\n  duration: 20.0\n")
     for workers in ("1", "2"):
         assert evaluate.main(flags + ["--workers", workers, "--out", str(tmp_path / workers)]) == 0
@@ -49,8 +104,24 @@ def test_ray_writes_the_rows_of_the_process_pool_and_resumes_its_log(tmp_path):
     two episodes resumes from its log on Ray to the same results."""
     pytest.importorskip("ray")
     (tmp_path / "short.yaml").write_text("episode:\n  duration: 20.0\n")
-    flags = ["--policies", "helix", "--motions", "static", "cv", "--episodes", "2", "--no-plots", "--measurement", "geometric",
-             "--reflections", "off", "--config", str(tmp_path / "short.yaml"), "--workers", "2"]
+    flags = [
+        "--policies",
+        "helix",
+        "--motions",
+        "static",
+        "cv",
+        "--episodes",
+        "2",
+        "--no-plots",
+        "--measurement",
+        "geometric",
+        "--reflections",
+        "off",
+        "--config",
+        str(tmp_path / "short.yaml"),
+        "--workers",
+        "2",
+    ]
     assert evaluate.main(flags + ["--out", str(tmp_path / "pool")]) == 0
     lines = (tmp_path / "pool" / "episodes.jsonl").read_text().splitlines()
     (tmp_path / "ray").mkdir()
@@ -85,8 +156,23 @@ def test_bad_flags_are_named(capsys, tmp_path):
 def test_a_missing_ray_is_a_clear_error(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray raises ImportError
     (tmp_path / "short.yaml").write_text("episode:\n  duration: 10.0\n")
-    flags = ["--policies", "helix", "--motions", "static", "--episodes", "1", "--no-plots", "--measurement", "geometric",
-             "--config", str(tmp_path / "short.yaml"), "--backend", "ray", "--out", str(tmp_path / "out")]
+    flags = [
+        "--policies",
+        "helix",
+        "--motions",
+        "static",
+        "--episodes",
+        "1",
+        "--no-plots",
+        "--measurement",
+        "geometric",
+        "--config",
+        str(tmp_path / "short.yaml"),
+        "--backend",
+        "ray",
+        "--out",
+        str(tmp_path / "out"),
+    ]
     assert evaluate.main(flags) == 2
     assert "--backend ray needs Ray" in capsys.readouterr().err
 
@@ -97,8 +183,22 @@ def test_an_interrupted_evaluation_resumes_where_it_stopped(tmp_path, monkeypatc
     short, other = tmp_path / "short.yaml", tmp_path / "other.yaml"
     short.write_text("episode:\n  duration: 10.0\n")
     other.write_text("episode:\n  duration: 12.0\n")
-    flags = ["--policies", "helix", "random", "--motions", "static", "--episodes", "2", "--no-plots", "--workers", "1",
-             "--reflections", "off", "--config", str(short)]
+    flags = [
+        "--policies",
+        "helix",
+        "random",
+        "--motions",
+        "static",
+        "--episodes",
+        "2",
+        "--no-plots",
+        "--workers",
+        "1",
+        "--reflections",
+        "off",
+        "--config",
+        str(short),
+    ]
     whole, cut = tmp_path / "whole", tmp_path / "cut"
     assert evaluate.main(flags + ["--out", str(whole)]) == 0
     lines = (whole / "episodes.jsonl").read_text().splitlines()

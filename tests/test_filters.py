@@ -16,6 +16,7 @@ FIXED = np.array([0.0, 0, -0.96])
 def hx_factory(mobile, mobile_velocity):
     def hx(states):
         return direct_measurement(states[..., 0:3], states[..., 3:6], mobile, mobile_velocity, FIXED) + states[..., -2:]
+
     return hx
 
 
@@ -25,7 +26,9 @@ def test_matches_filterpy_step_for_step(name):
     model = MOTION_MODELS[name](config)
     ours = UnscentedKalmanFilter(model, alpha=0.5, beta=2.0, kappa=0.0)
     points = MerweScaledSigmaPoints(model.dim, alpha=0.5, beta=2.0, kappa=0.0)
-    reference = FilterpyUKF(dim_x=model.dim, dim_z=2, dt=0.2, fx=lambda x, dt: model.transition(x[None], dt)[0], hx=None, points=points)
+    reference = FilterpyUKF(
+        dim_x=model.dim, dim_z=2, dt=0.2, fx=lambda x, dt: model.transition(x[None], dt)[0], hx=None, points=points
+    )
     rng = np.random.default_rng(1)
     x0 = np.zeros(model.dim)
     x0[:6] = [8.0, -5, -10, 0.3, 0.2, 0]
@@ -39,12 +42,14 @@ def test_matches_filterpy_step_for_step(name):
         angle = 0.1 * k
         mobile = np.array([10 * np.cos(angle), 10 * np.sin(angle), -7.0])
         mobile_velocity = np.array([-np.sin(angle), np.cos(angle), 0.0])
-        z = direct_measurement(np.array([8.0 + 0.06 * k, -5 + 0.04 * k, -10]), np.array([0.3, 0.2, 0]), mobile, mobile_velocity, FIXED)
+        z = direct_measurement(
+            np.array([8.0 + 0.06 * k, -5 + 0.04 * k, -10]), np.array([0.3, 0.2, 0]), mobile, mobile_velocity, FIXED
+        )
         z = z + rng.normal(0, [0.05, 0.02])
         ours.predict(0.2)
         ours.update(z, R, hx_factory(mobile, mobile_velocity))
         reference.predict()
-        reference.update(z, R=R, hx=lambda x: hx_factory(mobile, mobile_velocity)(x[None])[0])
+        reference.update(z, R=R, hx=lambda x: hx_factory(mobile, mobile_velocity)(x[None])[0])  # noqa: B023  (called here)
         np.testing.assert_allclose(ours.x, reference.x, rtol=0, atol=1e-8)
         np.testing.assert_allclose(ours.P, reference.P, rtol=0, atol=1e-8)
         assert ours.log_likelihood == pytest.approx(reference.log_likelihood, abs=1e-8)
@@ -119,9 +124,18 @@ def test_a_filter_with_depth_bounds_reflects_where_the_world_does(name):
     from aasl_gym.motion import Box, SourceState, advance_source
 
     region = Box(np.inf, -12.0, -2.0)
-    model = MOTION_MODELS[name](FilterConfig(acceleration_psd=0.0, jerk_psd=0.0, turn_rate_psd=0.0), (region.z_min, region.z_max))
+    model = MOTION_MODELS[name](
+        FilterConfig(acceleration_psd=0.0, jerk_psd=0.0, turn_rate_psd=0.0), (region.z_min, region.z_max)
+    )
     acceleration = np.array([0.0, 0.01, -0.004]) if name == "ca" else np.zeros(3)
-    source = SourceState(name, np.array([3.0, 1.0, -3.013]), np.array([0.4, -0.2, 0.35]), acceleration, 0.05 if name == "ctrv" else 0.0, 10.0)
+    source = SourceState(
+        name,
+        np.array([3.0, 1.0, -3.013]),
+        np.array([0.4, -0.2, 0.35]),
+        acceleration,
+        0.05 if name == "ctrv" else 0.0,
+        10.0,
+    )
     extra = {"cv": [], "ca": acceleration, "ctrv": [source.turn_rate]}[name]
     ukf = UnscentedKalmanFilter(model)
     ukf.initialize(np.concatenate([source.position, source.velocity, extra, [0.0, 0.0]]), np.eye(model.dim) * 1e-10)

@@ -26,7 +26,9 @@ def test_the_covariance_update_is_the_information_form(rng):
     jacobian = rng.normal(size=(2, 8))
     noise = np.diag([0.05**2, 0.02**2])
     information = np.linalg.inv(covariance) + jacobian.T @ np.linalg.inv(noise) @ jacobian
-    np.testing.assert_allclose(updated_covariance(covariance, jacobian, noise), np.linalg.inv(information), rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(
+        updated_covariance(covariance, jacobian, noise), np.linalg.inv(information), rtol=1e-8, atol=1e-12
+    )
 
 
 def test_the_measurement_jacobian_is_the_derivative_of_the_measurement(rng):
@@ -38,8 +40,12 @@ def test_the_measurement_jacobian_is_the_derivative_of_the_measurement(rng):
         return direct_measurement(x[0:3], x[3:6], mobile, mobile_velocity, FIXED) + x[6:8]
 
     step = 1e-6
-    numeric = np.stack([(measure(state + step * e) - measure(state - step * e)) / (2 * step) for e in np.eye(8)], axis=1)
-    np.testing.assert_allclose(measurement_jacobian(state[0:3], state[3:6], mobile, mobile_velocity, FIXED), numeric, atol=1e-7)
+    numeric = np.stack(
+        [(measure(state + step * e) - measure(state - step * e)) / (2 * step) for e in np.eye(8)], axis=1
+    )
+    np.testing.assert_allclose(
+        measurement_jacobian(state[0:3], state[3:6], mobile, mobile_velocity, FIXED), numeric, atol=1e-7
+    )
 
 
 def test_the_tracker_is_a_kalman_filter_covariance_and_a_lost_frame_only_predicts():
@@ -57,7 +63,9 @@ def test_the_tracker_is_a_kalman_filter_covariance_and_a_lost_frame_only_predict
     for k in range(30):
         angle = 0.1 * k
         mobile = np.array([15 * np.cos(angle), 15 * np.sin(angle), -7.0])
-        jacobian = measurement_jacobian(np.array([5.0, 2, -10]), np.zeros(3), mobile, np.array([-np.sin(angle), np.cos(angle), 0.0]), FIXED)
+        jacobian = measurement_jacobian(
+            np.array([5.0, 2, -10]), np.zeros(3), mobile, np.array([-np.sin(angle), np.cos(angle), 0.0]), FIXED
+        )
         covariance = f @ covariance @ f.T + process_noise
         gain = covariance @ jacobian.T @ np.linalg.inv(jacobian @ covariance @ jacobian.T + noise)
         covariance = (np.eye(8) - gain @ jacobian) @ covariance

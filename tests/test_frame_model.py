@@ -21,7 +21,9 @@ def test_a_track_linear_in_time_averages_to_its_centre_and_its_rate(rng):
 
     position, velocity = rng.normal(0, 10, (4, 3)), rng.normal(0, 1, (4, 3))
     for samples in (2, 3, 7):
-        z = frame_averaged(x_coordinate, frame_offsets(0.2, samples), 4.2, position, velocity, np.zeros(3), np.ones(3), FIXED)
+        z = frame_averaged(
+            x_coordinate, frame_offsets(0.2, samples), 4.2, position, velocity, np.zeros(3), np.ones(3), FIXED
+        )
         np.testing.assert_allclose(z[:, 0], position[:, 0], atol=1e-12)
         np.testing.assert_allclose(z[:, 1], velocity[:, 0], atol=1e-12)
 
@@ -41,14 +43,18 @@ def test_the_frame_model_is_what_the_tone_front_end_measures_with_reflections(rn
         source_velocity, mobile_velocity = rng.normal(0, 0.7, 3), rng.normal(0, 0.8, 3)
         waveform = synthesis.Waveform.random("tone", rng)
         paths = synthesis.path_sources(source, source_velocity, True, 60.0, -0.9, 0.3)
-        channel = synthesis.synthesize(waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
+        channel = synthesis.synthesize(
+            waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
+        )
         result = frontend.estimate(frontend.envelopes(channel, waveform, 10_000.0, 0.02), waveform, C, 45.0 / C)
         measured = np.array([result.range_difference, result.range_rate_difference])
         wavenumber = 2 * np.pi * waveform.frequency / C
         phasor = partial(multipath_measurement, "phasor", Propagation(60.0, -0.9, 0.3, wavenumber))
         state = (source, source_velocity, mobile, mobile_velocity, FIXED)
-        for model, misses in ((phasor(*state), centre_misses),
-                              (frame_averaged(phasor, frame_offsets(0.2, 5), wavenumber, *state), frame_misses)):
+        for model, misses in (
+            (phasor(*state), centre_misses),
+            (frame_averaged(phasor, frame_offsets(0.2, 5), wavenumber, *state), frame_misses),
+        ):
             miss = measured - model
             miss[0] = geometry.wrap_to_period(miss[0], C / waveform.frequency)
             misses.append(np.abs(miss))

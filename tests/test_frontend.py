@@ -18,12 +18,30 @@ def scene(rng):
     return source, rng.normal(0, 0.7, 3), mobile, rng.normal(0, 0.8, 3)
 
 
-def measure(waveform, source, source_velocity, mobile, mobile_velocity, baseband=True, noise_level_db=None, rng=None, guard=0.02):
+def measure(
+    waveform, source, source_velocity, mobile, mobile_velocity, baseband=True, noise_level_db=None, rng=None, guard=0.02
+):
     """One 0.2 s frame (plus ``guard`` s each side, dropped after filtering) through the front end."""
     rate = 10_000.0 if baseband else 200_000.0
     paths = synthesis.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
-    channel = synthesis.synthesize(waveform, 3.0, 0.2 + 2 * guard, rate, baseband, paths, mobile, mobile_velocity, FIXED, C, 140.0, noise_level_db, rng)
-    return frontend.estimate(frontend.envelopes(channel, waveform, 10_000.0, guard), waveform, C, MAX_DELAY, noise_level_db=noise_level_db)
+    channel = synthesis.synthesize(
+        waveform,
+        3.0,
+        0.2 + 2 * guard,
+        rate,
+        baseband,
+        paths,
+        mobile,
+        mobile_velocity,
+        FIXED,
+        C,
+        140.0,
+        noise_level_db,
+        rng,
+    )
+    return frontend.estimate(
+        frontend.envelopes(channel, waveform, 10_000.0, guard), waveform, C, MAX_DELAY, noise_level_db=noise_level_db
+    )
 
 
 @pytest.mark.parametrize("kind", ["tone", "sweep", "hop"])
@@ -62,7 +80,9 @@ def test_fdoa_sign_follows_the_spec(rng):
     mobile_velocity = np.array([1.5, 0.0, 0.0])  # straight away from the source
     waveform = synthesis.Waveform.random("tone", rng)
     paths = synthesis.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
-    channel = synthesis.synthesize(waveform, 3.0, 0.2, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
+    channel = synthesis.synthesize(
+        waveform, 3.0, 0.2, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
+    )
 
     def frequency(envelope):
         return waveform.frequency + np.angle(np.vdot(envelope[:-1], envelope[1:])) * channel.rate / (2 * np.pi)
@@ -71,7 +91,9 @@ def test_fdoa_sign_follows_the_spec(rng):
     rrd = geometry.range_rate_difference(source, source_velocity, mobile, mobile_velocity, FIXED)
     assert rrd > 0
     assert fdoa == pytest.approx(geometry.fdoa_from_rrd(rrd, waveform.frequency, C), rel=1e-3)
-    assert measure(waveform, source, source_velocity, mobile, mobile_velocity).range_rate_difference == pytest.approx(rrd, abs=2e-3)
+    assert measure(waveform, source, source_velocity, mobile, mobile_velocity).range_rate_difference == pytest.approx(
+        rrd, abs=2e-3
+    )
 
 
 @pytest.mark.parametrize("kind,rd_tolerance,rrd_tolerance", [("tone", 2e-3, 5e-3), ("sweep", 2e-2, 2e-2)])
@@ -96,7 +118,9 @@ def test_filtered_noise_matches_its_closed_form_on_both_paths(kind, rng):
     waveform = synthesis.Waveform.random(kind, rng)
     level, band = 80.0, waveform.band
     for baseband, rate in ((True, 10_000.0), (False, 200_000.0)):
-        channel = synthesis.synthesize(waveform, 0.0, 4.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng)
+        channel = synthesis.synthesize(
+            waveform, 0.0, 4.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng
+        )
         noise = frontend.envelopes(channel, waveform, 10_000.0, 0.02).fixed
         power = 2 * 10 ** (level / 10) * bandpass.noise_bandwidth(band) / (band[1] - band[0])
         assert np.mean(np.abs(noise) ** 2) == pytest.approx(power, rel=0.04)
@@ -117,10 +141,19 @@ def test_range_difference_noise_follows_the_cramer_rao_bound(rng):
     spreads, bounds = [], []
     for noise_level in (110.0, 100.0):
         errors = [
-            geometry.wrap_to_period(measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng).range_difference - rd, wavelength)
+            geometry.wrap_to_period(
+                measure(
+                    waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng
+                ).range_difference
+                - rd,
+                wavelength,
+            )
             for _ in range(200)
         ]
-        snr = [10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10) for receiver in (mobile, FIXED)]
+        snr = [
+            10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10)
+            for receiver in (mobile, FIXED)
+        ]
         spreads.append(np.std(errors))
         bounds.append(wavelength / (2 * np.pi) * np.sqrt((1 / snr[0] + 1 / snr[1]) / (2 * band * frame)))
     for spread, bound in zip(spreads, bounds):
@@ -140,17 +173,30 @@ def test_with_reflections_the_tone_front_end_measures_the_phasor_model(rng):
         source, source_velocity, mobile, mobile_velocity = scene(rng)
         waveform = synthesis.Waveform.random("tone", rng)
         paths = synthesis.path_sources(source, source_velocity, True, 60.0, -0.9, 0.3)
-        channel = synthesis.synthesize(waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None)
+        channel = synthesis.synthesize(
+            waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
+        )
         result = frontend.estimate(frontend.envelopes(channel, waveform, 10_000.0, 0.02), waveform, C, MAX_DELAY)
         wavenumber, wavelength = 2 * np.pi * waveform.frequency / C, C / waveform.frequency
         offsets = np.linspace(-0.1, 0.1, 201)[:, None]
-        model_rd, _ = geometry.phasor_multipath(source + source_velocity * offsets, source_velocity, mobile + mobile_velocity * offsets,
-                                                mobile_velocity, FIXED, 60.0, -0.9, 0.3, wavenumber)
+        model_rd, _ = geometry.phasor_multipath(
+            source + source_velocity * offsets,
+            source_velocity,
+            mobile + mobile_velocity * offsets,
+            mobile_velocity,
+            FIXED,
+            60.0,
+            -0.9,
+            0.3,
+            wavenumber,
+        )
         slope, mean = np.polyfit(offsets[:, 0], model_rd, 1)
         assert abs(geometry.wrap_to_period(result.range_difference - mean, wavelength)) < 1e-3
         assert result.range_rate_difference == pytest.approx(slope, abs=5e-3)
         direct = geometry.range_difference(source, mobile, FIXED)
-        largest_multipath_effect = max(largest_multipath_effect, abs(geometry.wrap_to_period(mean - direct, wavelength)))
+        largest_multipath_effect = max(
+            largest_multipath_effect, abs(geometry.wrap_to_period(mean - direct, wavelength))
+        )
     assert largest_multipath_effect > 0.05  # a front end that ignored the images would fail the checks above
 
 
@@ -185,10 +231,16 @@ def test_tone_measurement_sd_matches_the_spread_of_the_estimates(rng):
     waveform = synthesis.Waveform.random("tone", rng)
     wavelength, noise_level = C / waveform.frequency, 104.0
     rd = geometry.range_difference(source, mobile, FIXED)
-    results = [measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng) for _ in range(300)]
+    results = [
+        measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng)
+        for _ in range(300)
+    ]
     rd_errors = [geometry.wrap_to_period(r.range_difference - rd, wavelength) for r in results]
     rrd_errors = [r.range_rate_difference for r in results]
-    snr = [10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10) for receiver in (mobile, FIXED)]
+    snr = [
+        10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10)
+        for receiver in (mobile, FIXED)
+    ]
     sd_rd, sd_rrd = frontend.tone_measurement_sd(snr[0], snr[1], wavelength, 200.0, 0.2)
     assert 0.8 < np.std(rd_errors) / sd_rd < 1.3
     assert 0.8 < np.std(rrd_errors) / sd_rrd < 1.3
@@ -202,7 +254,9 @@ def test_front_end_measures_the_snr_model(path, rng):
     front_end = frontend.FrontEnd(path=path)
     for noise_level in (78.0, 100.0):
         front_end.noise_level_db = noise_level
-        snrs = np.array([front_end.measure(rng, 1.0, source, np.zeros(3), mobile, np.zeros(3), FIXED)[1] for _ in range(10)])
+        snrs = np.array(
+            [front_end.measure(rng, 1.0, source, np.zeros(3), mobile, np.zeros(3), FIXED)[1] for _ in range(10)]
+        )
         model = [140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level for receiver in (mobile, FIXED)]
         np.testing.assert_allclose(10 * np.log10(snrs.mean(axis=0)), model, atol=1.0)
 
@@ -217,9 +271,17 @@ def test_wideband_spread_is_covered_by_the_filter_noise_model(kind, rng):
     waveform = synthesis.Waveform.random(kind, rng)
     rd = geometry.range_difference(source, mobile, FIXED)
     for noise_level in (104.0, 94.0):
-        results = [measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng) for _ in range(200)]
-        snr = [10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10) for receiver in (mobile, FIXED)]
-        sd_rd, sd_rrd = frontend.tone_measurement_sd(snr[0], snr[1], C / waveform.carrier, waveform.band[1] - waveform.band[0], 0.2)
+        results = [
+            measure(waveform, source, np.zeros(3), mobile, np.zeros(3), noise_level_db=noise_level, rng=rng)
+            for _ in range(200)
+        ]
+        snr = [
+            10 ** ((140.0 - 20 * np.log10(np.linalg.norm(source - receiver)) - noise_level) / 10)
+            for receiver in (mobile, FIXED)
+        ]
+        sd_rd, sd_rrd = frontend.tone_measurement_sd(
+            snr[0], snr[1], C / waveform.carrier, waveform.band[1] - waveform.band[0], 0.2
+        )
         assert 0.8 < np.std([r.range_difference - rd for r in results]) / sd_rd < 1.4
         assert 0.8 < np.std([r.range_rate_difference for r in results]) / sd_rrd < 1.4
 
@@ -262,8 +324,10 @@ def test_saturation_is_detected_on_both_paths(rng):
     """An unclipped noisy tone reaches its largest magnitude once; clipped at any level up to 0.9 of its
     RMS amplitude, more than 1 % of its samples sit there (real, and complex parts apart)."""
     times = np.arange(2000) / 10_000
-    for samples in (np.cos(2 * np.pi * 1000 * times) + rng.normal(0, 0.3, 2000),
-                    np.exp(2j * np.pi * 3 * times) + rng.normal(0, 0.3, 2000) + 1j * rng.normal(0, 0.3, 2000)):
+    for samples in (
+        np.cos(2 * np.pi * 1000 * times) + rng.normal(0, 0.3, 2000),
+        np.exp(2j * np.pi * 3 * times) + rng.normal(0, 0.3, 2000) + 1j * rng.normal(0, 0.3, 2000),
+    ):
         assert not frontend.saturated(samples)
         for level in (0.1, 0.5, 0.9):
             assert frontend.saturated(synthesis.clipped(samples, level))

@@ -32,7 +32,9 @@ def test_rrd_is_time_derivative_of_rd(rng):
     h = 1e-6
     forward = geometry.range_difference(source + h * vs, mobile + h * vm, fixed)
     backward = geometry.range_difference(source - h * vs, mobile - h * vm, fixed)
-    np.testing.assert_allclose(geometry.range_rate_difference(source, vs, mobile, vm, fixed), (forward - backward) / (2 * h), atol=1e-7)
+    np.testing.assert_allclose(
+        geometry.range_rate_difference(source, vs, mobile, vm, fixed), (forward - backward) / (2 * h), atol=1e-7
+    )
 
 
 def test_jacobian_matches_finite_differences(rng):
@@ -45,7 +47,10 @@ def test_jacobian_matches_finite_differences(rng):
 
         def z(delta):
             p, v = source + delta[:3], vs + delta[3:]
-            return np.stack([geometry.range_difference(p, mobile, fixed), geometry.range_rate_difference(p, v, mobile, vm, fixed)], -1)
+            return np.stack(
+                [geometry.range_difference(p, mobile, fixed), geometry.range_rate_difference(p, v, mobile, vm, fixed)],
+                -1,
+            )
 
         np.testing.assert_allclose(jac[..., i], (z(step) - z(-step)) / (2 * h), atol=1e-6)
 
@@ -70,11 +75,15 @@ def test_image_sources_give_reflected_path_lengths():
     d_s, d_r = -source[2], -receiver[2]
     along = horizontal * d_s / (d_s + d_r)
     point = source + np.r_[(receiver[:2] - source[:2]) / horizontal * along, d_s]
-    assert np.linalg.norm(surface - receiver) == pytest.approx(np.linalg.norm(point - source) + np.linalg.norm(receiver - point))
+    assert np.linalg.norm(surface - receiver) == pytest.approx(
+        np.linalg.norm(point - source) + np.linalg.norm(receiver - point)
+    )
     h_s, h_r = depth - d_s, depth - d_r  # heights above the bed
     along = horizontal * h_s / (h_s + h_r)
     point = source + np.r_[(receiver[:2] - source[:2]) / horizontal * along, -h_s]
-    assert np.linalg.norm(bed - receiver) == pytest.approx(np.linalg.norm(point - source) + np.linalg.norm(receiver - point))
+    assert np.linalg.norm(bed - receiver) == pytest.approx(
+        np.linalg.norm(point - source) + np.linalg.norm(receiver - point)
+    )
 
 
 def phasor_sum(source, receiver, depth, gains):
@@ -93,7 +102,9 @@ def test_phasor_model_matches_an_independent_phasor_sum(rng):
         source = rng.uniform([-20, -20, -18], [20, 20, -2])
         mobile = rng.uniform([-15, -15, -15], [15, 15, -2])
         rd, _ = geometry.phasor_multipath(source, np.zeros(3), mobile, np.zeros(3), fixed, depth, *gains, K)
-        expected = -np.angle(phasor_sum(source, mobile, depth, gains) * np.conj(phasor_sum(source, fixed, depth, gains))) / K
+        expected = (
+            -np.angle(phasor_sum(source, mobile, depth, gains) * np.conj(phasor_sum(source, fixed, depth, gains))) / K
+        )
         wavelength = 2 * np.pi / K
         assert geometry.wrap_to_period(rd - expected, wavelength) == pytest.approx(0.0, abs=1e-9)
 
@@ -124,7 +135,10 @@ def test_linear_model_sign_conventions():
     source, mobile, fixed = np.array([5.0, 0, -4]), np.array([12.0, 3, -6]), np.array([0.0, 0, -0.96])
     surface = source * [1, 1, -1]
     bed = np.array([5.0, 0, -2 * 30 + 4])
-    expected = (geometry.range_difference(source, mobile, fixed) - 0.9 * geometry.range_difference(surface, mobile, fixed)
-                + 0.3 * geometry.range_difference(bed, mobile, fixed))
+    expected = (
+        geometry.range_difference(source, mobile, fixed)
+        - 0.9 * geometry.range_difference(surface, mobile, fixed)
+        + 0.3 * geometry.range_difference(bed, mobile, fixed)
+    )
     rd, _ = geometry.linear_multipath(source, np.zeros(3), mobile, np.zeros(3), fixed, 30.0, -0.9, 0.3)
     assert rd == pytest.approx(expected)

@@ -7,8 +7,8 @@ from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.fisher import position_information_logdet, updated_covariance
 from aasl_gym.measurement_models import expected_noise_covariance, navigation_covariance
-from agents import make_policy
 from aasl_gym.planning import GreedyPlanner, candidate_directions
+from agents import make_policy
 
 
 def test_expected_noise_is_what_the_front_end_tells_the_filter():
@@ -56,7 +56,9 @@ def test_scores_are_the_information_after_the_horizon():
             at = receiver + command * k * config.dt
             source = estimate + velocity * k * config.dt
             jacobian = measurement_jacobian(source, velocity, at, command, planner.fixed)
-            covariance = updated_covariance(f @ covariance @ f.T + planner.process_noise, jacobian, expected_noise_covariance(config, source, at))
+            covariance = updated_covariance(
+                f @ covariance @ f.T + planner.process_noise, jacobian, expected_noise_covariance(config, source, at)
+            )
         assert scores[index] == pytest.approx(float(position_information_logdet(covariance)), rel=1e-9)
     planner.information.reset(start)
     assert np.all(planner.command(estimate, velocity, receiver) == planner.commands[np.argmax(scores)])

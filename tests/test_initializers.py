@@ -1,11 +1,21 @@
 """Initializers: the locus in closed form, feasible offsets, and LC-MAP on a clean burst."""
 
+import itertools
+
 import numpy as np
 import pytest
 
 from aasl_gym import geometry
 from aasl_gym.config import InitializerConfig
-from aasl_gym.initializers import Burst, CandidateMotion, _predicted, feasible_offsets, fibonacci_directions, locus_points, make_initializer
+from aasl_gym.initializers import (
+    Burst,
+    CandidateMotion,
+    _predicted,
+    feasible_offsets,
+    fibonacci_directions,
+    locus_points,
+    make_initializer,
+)
 from aasl_gym.measurement_models import direct_measurement
 from aasl_gym.motion import Box
 
@@ -115,11 +125,17 @@ def turning_truth(position, velocity, turn_rate, times, substeps=400):
 
     def turned(t):
         angle = turn_rate * t
-        return np.stack([np.cos(angle) * velocity[0] - np.sin(angle) * velocity[1],
-                         np.sin(angle) * velocity[0] + np.cos(angle) * velocity[1], np.full_like(t, velocity[2])], -1)
+        return np.stack(
+            [
+                np.cos(angle) * velocity[0] - np.sin(angle) * velocity[1],
+                np.sin(angle) * velocity[0] + np.cos(angle) * velocity[1],
+                np.full_like(t, velocity[2]),
+            ],
+            -1,
+        )
 
     positions, current = [np.asarray(position, float)], np.asarray(position, float)
-    for start, end in zip(times[:-1], times[1:]):
+    for start, end in itertools.pairwise(times):
         fine = np.linspace(start, end, substeps + 1)
         vel = turned(fine)
         current = current + np.sum(np.diff(fine)[:, None] * 0.5 * (vel[1:] + vel[:-1]), axis=0)
@@ -131,7 +147,9 @@ def test_turn_terms_follow_an_integrated_turn():
     tau = np.linspace(0.0, 40.0, 9)
     position, velocity = np.array([3.0, -4.0, -10.0]), np.array([0.8, -0.5, 0.05])
     for rate in (0.0, 0.07, -0.11, 1e-6):
-        trajectory, trajectory_velocity = CandidateMotion(tau, np.array([rate])).trajectory(position[None], velocity[None])
+        trajectory, trajectory_velocity = CandidateMotion(tau, np.array([rate])).trajectory(
+            position[None], velocity[None]
+        )
         truth_p, truth_v = turning_truth(position, velocity, rate, tau)
         np.testing.assert_allclose(trajectory[0], truth_p, atol=1e-3)
         np.testing.assert_allclose(np.broadcast_to(trajectory_velocity[0], truth_v.shape), truth_v, atol=1e-9)
@@ -145,6 +163,7 @@ def test_turn_terms_chain_rule_matches_finite_differences(rate):
     turns = CandidateMotion(tau, np.array([rate]))
     theta = np.array([7.0, -5, -11, 0.6, 0.4, -0.05])
     from aasl_gym.initializers import LCMAPInitializer
+
     analytic = LCMAPInitializer._jacobians(burst, theta[None, :3], theta[None, 3:], turns)[0]
     numeric = np.zeros_like(analytic)
     for i in range(6):
@@ -203,7 +222,11 @@ def test_lcmap_with_a_ca_filter_fits_the_acceleration(rng):
     angle = times / 15.0
     mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), -7 - 5 * np.sin(2 * np.pi * times / 30)], -1)
     mobile_velocity = np.gradient(mobile, times, axis=0)
-    position, velocity, acceleration = np.array([9.0, -6, -10]), np.array([0.3, 0.2, 0.0]), np.array([-0.016, 0.012, 0.0])
+    position, velocity, acceleration = (
+        np.array([9.0, -6, -10]),
+        np.array([0.3, 0.2, 0.0]),
+        np.array([-0.016, 0.012, 0.0]),
+    )
     truth_p = position + velocity * times[:, None] + 0.5 * acceleration * times[:, None] ** 2
     truth_v = velocity + acceleration * times[:, None]
     z = direct_measurement(truth_p, truth_v, mobile, mobile_velocity, FIXED)

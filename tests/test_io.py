@@ -1,6 +1,7 @@
 """Atomic writes: a file is replaced whole or not at all."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -20,7 +21,7 @@ def test_a_failed_write_keeps_the_old_file_and_cleans_up(tmp_path):
     target.write_text("old")
 
     def crash(tmp: str) -> None:
-        open(tmp, "w").write("half")
+        Path(tmp).write_text("half")
         raise RuntimeError("disk full")
 
     with pytest.raises(RuntimeError, match="disk full"):

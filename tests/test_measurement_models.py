@@ -35,7 +35,9 @@ def test_receiver_jacobian_of_the_direct_path_is_the_closed_form(rng):
     source, velocity, mobile, mobile_velocity = scenes(rng, 50)
     # Wrapped, the direct path is differenced like any model; given itself, it takes the closed form.
     differenced = receiver_jacobian(lambda *a: direct_measurement(*a), source, velocity, mobile, mobile_velocity, FIXED)
-    np.testing.assert_allclose(receiver_jacobian(direct_measurement, source, velocity, mobile, mobile_velocity, FIXED), differenced, atol=1e-6)
+    np.testing.assert_allclose(
+        receiver_jacobian(direct_measurement, source, velocity, mobile, mobile_velocity, FIXED), differenced, atol=1e-6
+    )
     jacobian = differenced
     distance, unit = geometry.ranges(source, mobile)
     relative = velocity - mobile_velocity
@@ -53,10 +55,17 @@ def test_navigation_term_matches_a_monte_carlo_of_receiver_errors(rng):
     source, velocity = np.array([-6.8, 11.5, -21.5]), np.array([0.3, 0.02, -0.15])
     mobile, mobile_velocity = np.array([15.0, 0, -7.0]), np.array([0.0, 1.0, 0.0])
     position_sd, velocity_sd = 0.003, 0.0012
-    expected = receiver_noise(receiver_jacobian(PHASOR, source, velocity, mobile, mobile_velocity, FIXED), position_sd, velocity_sd)
+    expected = receiver_noise(
+        receiver_jacobian(PHASOR, source, velocity, mobile, mobile_velocity, FIXED), position_sd, velocity_sd
+    )
     samples = 20000
-    z = PHASOR(source, velocity, mobile + position_sd * rng.normal(size=(samples, 3)),
-               mobile_velocity + velocity_sd * rng.normal(size=(samples, 3)), FIXED)
+    z = PHASOR(
+        source,
+        velocity,
+        mobile + position_sd * rng.normal(size=(samples, 3)),
+        mobile_velocity + velocity_sd * rng.normal(size=(samples, 3)),
+        FIXED,
+    )
     sampled = np.cov(z.T)
     np.testing.assert_allclose(np.diag(sampled), np.diag(expected), rtol=0.06)
     correlation = sampled[0, 1] / np.sqrt(sampled[0, 0] * sampled[1, 1])
@@ -83,7 +92,9 @@ def test_unscented_transform_of_the_phasor_model_matches_monte_carlo(seed):
     mobile, mobile_velocity = np.array([15.0, 0.0, -7.0]), np.array([0.0, 1.0, 0.0])
 
     def h(points):  # row 0, the mean, anchors the multipath correction as in the UKF; resolved: the ripple is modelled
-        return tracker._sigma_measurements(points[None], np.array([0.05]), np.array([True]), mobile, mobile_velocity)[0][0]
+        return tracker._sigma_measurements(points[None], np.array([0.05]), np.array([True]), mobile, mobile_velocity)[
+            0
+        ][0]
 
     f = tracker.config.filter
     wm, wc, spread = merwe_weights(8, f.alpha, f.beta, f.kappa)
@@ -116,7 +127,9 @@ def test_an_unresolved_hypothesis_takes_the_ripple_as_noise():
     correction[:, 0] = correction[0, 0] + geometry.wrap_to_period(correction[:, 0] - correction[0, 0], 1.5)
     np.testing.assert_allclose(z[0] - sigmas[:, -2:], direct + correction[0], atol=1e-9)
     deviation = correction[1:] - correction[0]
-    navigation = receiver_noise(receiver_jacobian(direct_measurement, state[0:3], state[3:6], mobile, mobile_velocity, FIXED), 0.05, 0.02)
+    navigation = receiver_noise(
+        receiver_jacobian(direct_measurement, state[0:3], state[3:6], mobile, mobile_velocity, FIXED), 0.05, 0.02
+    )
     np.testing.assert_allclose(noise[0], deviation.T @ deviation / (2 * spread) + navigation, rtol=1e-6)
 
 

@@ -16,6 +16,13 @@ def test_convergence_time_requires_staying_below():
 def test_success_rmse_and_first_estimate():
     times = np.arange(1, 6) * 1.0
     errors = np.array([np.nan, 3.0, 4.0, 0.4, 0.15])
-    assert metrics.success(times, errors) == {"0.1": False, "0.2": True, "0.5": True, "1.0": True, "2.0": True, "3.0": True}
+    assert metrics.success(times, errors) == {
+        "0.1": False,
+        "0.2": True,
+        "0.5": True,
+        "1.0": True,
+        "2.0": True,
+        "3.0": True,
+    }
     assert metrics.rmse(errors) == np.sqrt(np.mean(np.array([3.0, 4.0, 0.4, 0.15]) ** 2))
     assert metrics.time_to_first_estimate(times, errors) == 2.0

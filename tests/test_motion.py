@@ -5,9 +5,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from aasl_gym.config import ReceiverConfig, SourceConfig, WorldConfig
+from aasl_gym.config import SourceConfig, WorldConfig
 from aasl_gym.motion import (
-    Box, NavigationError, SourceState, advance_source, motion_region, move_receiver, sample_source,
+    Box,
+    NavigationError,
+    SourceState,
+    advance_source,
+    motion_region,
+    move_receiver,
+    sample_source,
 )
 
 WORLD, SOURCE = WorldConfig(), SourceConfig()
@@ -40,7 +46,9 @@ def test_ctrv_follows_a_circle():
     for step in range(1, 200):
         state = advance_source(state, 0.2, BIG)
         angle = omega * 0.2 * step
-        np.testing.assert_allclose(state.position[:2], [radius * np.sin(angle), radius * (1 - np.cos(angle))], atol=1e-9)
+        np.testing.assert_allclose(
+            state.position[:2], [radius * np.sin(angle), radius * (1 - np.cos(angle))], atol=1e-9
+        )
         assert np.linalg.norm(state.velocity) == pytest.approx(speed)
 
 
@@ -81,7 +89,9 @@ def test_same_seed_same_source():
 def test_receiver_speed_limit_and_keep_out():
     region = Box(60.0, -58.0, -1.0)
     centre = np.array([0.0, 0, -0.96])
-    position, velocity, hit = move_receiver(np.array([10.0, 0, -5]), np.array([10.0, 0, 0]), 0.2, 1.5, region, centre, 3.0)
+    position, velocity, hit = move_receiver(
+        np.array([10.0, 0, -5]), np.array([10.0, 0, 0]), 0.2, 1.5, region, centre, 3.0
+    )
     assert np.linalg.norm(velocity) == pytest.approx(1.5) and not hit
     position, hits = np.array([4.0, 0, -3]), []
     for _ in range(20):
@@ -95,7 +105,9 @@ def test_receiver_speed_limit_and_keep_out():
 
 def test_surface_vessel_ignores_z():
     region = Box(60.0, -58.0, -0.5)
-    position, velocity, _ = move_receiver(np.array([10.0, 0, -1]), np.array([0.0, 1, -1]), 0.2, 1.5, region, np.zeros(3), 3.0, surface_depth=1.0)
+    position, velocity, _ = move_receiver(
+        np.array([10.0, 0, -1]), np.array([0.0, 1, -1]), 0.2, 1.5, region, np.zeros(3), 3.0, surface_depth=1.0
+    )
     assert position[2] == -1.0 and velocity[2] == 0.0
 
 

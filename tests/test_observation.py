@@ -7,7 +7,12 @@ import pytest
 
 from aasl_gym.config import EnvConfig
 from aasl_gym.observation import (
-    OBSERVATION_LAYOUT, OBSERVATION_SIZE, OBSERVATION_SLICES, Observation, decode_observation, encode_observation,
+    OBSERVATION_LAYOUT,
+    OBSERVATION_SIZE,
+    OBSERVATION_SLICES,
+    Observation,
+    decode_observation,
+    encode_observation,
 )
 
 CONFIG = EnvConfig()
@@ -22,17 +27,29 @@ def test_the_layout_is_laid_end_to_end():
 
 def test_decoding_undoes_encoding_to_float32_precision(rng):
     known = Observation(
-        time=37.4, receiver_position=rng.uniform(-30, 0, 3), receiver_velocity=rng.uniform(-1, 1, 3),
-        measurement=np.array([3.2, -0.4]), innovation=np.array([0.7, -1.9]), initialized=True,
-        estimate_position=rng.uniform(-30, 0, 3), estimate_velocity=rng.uniform(-1, 1, 3),
+        time=37.4,
+        receiver_position=rng.uniform(-30, 0, 3),
+        receiver_velocity=rng.uniform(-1, 1, 3),
+        measurement=np.array([3.2, -0.4]),
+        innovation=np.array([0.7, -1.9]),
+        initialized=True,
+        estimate_position=rng.uniform(-30, 0, 3),
+        estimate_velocity=rng.uniform(-1, 1, 3),
         position_variance=np.array([0.3, 2.0, 0.01]),
     )
     vector = encode_observation(known, CONFIG)
     assert vector.dtype == np.float32 and vector.shape == (OBSERVATION_SIZE,)
     seen = decode_observation(vector, CONFIG)
     assert seen.initialized and seen.time == pytest.approx(known.time, rel=1e-6)
-    for name in ("receiver_position", "receiver_velocity", "measurement", "innovation", "estimate_position",
-                 "estimate_velocity", "position_variance"):
+    for name in (
+        "receiver_position",
+        "receiver_velocity",
+        "measurement",
+        "innovation",
+        "estimate_position",
+        "estimate_velocity",
+        "position_variance",
+    ):
         np.testing.assert_allclose(getattr(seen, name), getattr(known, name), rtol=1e-5, atol=1e-5)
 
 

@@ -17,7 +17,10 @@ def test_the_reference_velocity_is_the_derivative_of_the_path(pattern):
     """Central differences of p_ref(t) give v_ref(t) (away from the lawnmower's corners)."""
     step = 1e-5
     for t in TIMES:
-        ahead, behind = REFERENCES[pattern](t + step, CONFIG, GEOMETRY)[0], REFERENCES[pattern](t - step, CONFIG, GEOMETRY)[0]
+        ahead, behind = (
+            REFERENCES[pattern](t + step, CONFIG, GEOMETRY)[0],
+            REFERENCES[pattern](t - step, CONFIG, GEOMETRY)[0],
+        )
         numeric = (ahead - behind) / (2 * step)
         if pattern == "lawnmower" and np.linalg.norm(numeric) > 1.01 * CONFIG.speed:
             continue  # a corner between the two points
@@ -53,6 +56,8 @@ def test_the_lawnmower_stays_on_its_square_and_the_command_pulls_onto_the_path()
         assert np.linalg.norm(velocity) == pytest.approx(CONFIG.speed)
     target, feedforward = REFERENCES["helix"](10.0, CONFIG, GEOMETRY)
     off = target + np.array([1.0, -2.0, 0.5])
-    np.testing.assert_allclose(patrol_command("helix", 10.0, off, CONFIG, GEOMETRY), feedforward - CONFIG.position_gain * (off - target))
+    np.testing.assert_allclose(
+        patrol_command("helix", 10.0, off, CONFIG, GEOMETRY), feedforward - CONFIG.position_gain * (off - target)
+    )
     with pytest.raises(ValueError, match="unknown patrol pattern 'zigzag'"):
         patrol_command("zigzag", 0.0, off, CONFIG, GEOMETRY)

@@ -5,8 +5,7 @@ of RD, the sign conventions of the contract. Derandomized (``conftest.py``): the
 from functools import partial
 
 import numpy as np
-from hypothesis import assume, given
-from hypothesis import strategies as st
+from hypothesis import assume, given, strategies as st
 
 from aasl_gym import geometry
 from aasl_gym.fisher import measurement_jacobian
@@ -37,7 +36,7 @@ VELOCITIES = vectors(-2, 2)
 
 def apart(*points, distance=1.0) -> bool:
     """Every pair of ``points`` at least ``distance`` metres apart (the models are singular at a receiver)."""
-    return all(np.linalg.norm(a - b) >= distance for i, a in enumerate(points) for b in points[i + 1:])
+    return all(np.linalg.norm(a - b) >= distance for i, a in enumerate(points) for b in points[i + 1 :])
 
 
 @given(SOURCES, MOBILES)
@@ -56,7 +55,9 @@ def test_swapping_the_hydrophones_negates_rd_and_rrd(source, velocity, mobile, m
     forward = geometry.range_rate_difference(source, velocity, mobile, mobile_velocity, FIXED)
     backward = geometry.range_rate_difference(source, velocity, FIXED, np.zeros(3), mobile, mobile_velocity)
     assert np.isclose(forward, -backward, atol=1e-12)
-    assert np.isclose(geometry.range_difference(source, mobile, FIXED), -geometry.range_difference(source, FIXED, mobile))
+    assert np.isclose(
+        geometry.range_difference(source, mobile, FIXED), -geometry.range_difference(source, FIXED, mobile)
+    )
 
 
 @given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
@@ -85,8 +86,10 @@ def test_the_direct_jacobian_matches_central_differences(source, velocity, mobil
         plus, minus = state.copy(), state.copy()
         plus[i] += step
         minus[i] -= step
-        numeric[:, i] = (direct_measurement(plus[:3], plus[3:], mobile, mobile_velocity, FIXED)
-                         - direct_measurement(minus[:3], minus[3:], mobile, mobile_velocity, FIXED)) / (2 * step)
+        numeric[:, i] = (
+            direct_measurement(plus[:3], plus[3:], mobile, mobile_velocity, FIXED)
+            - direct_measurement(minus[:3], minus[3:], mobile, mobile_velocity, FIXED)
+        ) / (2 * step)
     closed = geometry.direct_jacobian(source, velocity, mobile, mobile_velocity, FIXED)
     np.testing.assert_allclose(closed, numeric, atol=1e-6)
     # The information's Jacobian adds the two biases, each with unit gain.
@@ -107,8 +110,9 @@ def test_the_receiver_jacobian_matches_central_differences(source, velocity, mob
         plus = direct_measurement(source, velocity, mobile + offset[:3], mobile_velocity + offset[3:], FIXED)
         minus = direct_measurement(source, velocity, mobile - offset[:3], mobile_velocity - offset[3:], FIXED)
         numeric[:, i] = (plus - minus) / (2 * step)
-    np.testing.assert_allclose(receiver_jacobian(direct_measurement, source, velocity, mobile, mobile_velocity, FIXED),
-                               numeric, atol=1e-6)
+    np.testing.assert_allclose(
+        receiver_jacobian(direct_measurement, source, velocity, mobile, mobile_velocity, FIXED), numeric, atol=1e-6
+    )
 
 
 @given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
@@ -135,9 +139,18 @@ def test_without_images_every_model_is_the_direct_path(source, velocity, mobile,
     silent = Propagation(60.0, 0.0, 0.0, PROPAGATION.wavenumber)
     direct = direct_measurement(source, velocity, mobile, mobile_velocity, FIXED)
     for model in ("phasor", "linear"):
-        np.testing.assert_allclose(multipath_measurement(model, silent, source, velocity, mobile, mobile_velocity, FIXED),
-                                   direct, atol=1e-9)
-    averaged = frame_averaged(partial(multipath_measurement, "phasor", silent), frame_offsets(0.2, 3),
-                              PROPAGATION.wavenumber, source, velocity, mobile, mobile_velocity, FIXED)
+        np.testing.assert_allclose(
+            multipath_measurement(model, silent, source, velocity, mobile, mobile_velocity, FIXED), direct, atol=1e-9
+        )
+    averaged = frame_averaged(
+        partial(multipath_measurement, "phasor", silent),
+        frame_offsets(0.2, 3),
+        PROPAGATION.wavenumber,
+        source,
+        velocity,
+        mobile,
+        mobile_velocity,
+        FIXED,
+    )
     # Over +-0.1 s the direct RD curves by at most (relative speed)^2 t^2 / range: millimetres.
     np.testing.assert_allclose(averaged, direct, atol=2e-2)

@@ -23,8 +23,9 @@ def test_each_mode_has_its_sensor_behind_one_interface(mode, kind):
 
 
 def test_the_geometric_sensor_reports_its_fixed_noise_and_the_snr_model():
-    config = EnvConfig().replace(measurement={"mode": "geometric", "range_difference_sd": 0.1},
-                                 fault={"kind": "dropped", "start": 0.4})
+    config = EnvConfig().replace(
+        measurement={"mode": "geometric", "range_difference_sd": 0.1}, fault={"kind": "dropped", "start": 0.4}
+    )
     sensor, rng = make_sensor(config), np.random.default_rng(3)
     sensor.reset(rng)
     for time in (0.2, 0.4):  # a measured frame, then a dropped one
@@ -49,8 +50,9 @@ def test_the_signal_sensor_reports_the_noise_of_its_measured_snrs():
     assert np.isnan(sensor.snr()).all()
 
 
-@pytest.mark.parametrize("mode,kind", [("geometric", "dropped"), ("signal", "dropped"), ("signal", "silent"),
-                                       ("signal", "clipped")])
+@pytest.mark.parametrize(
+    "mode,kind", [("geometric", "dropped"), ("signal", "dropped"), ("signal", "silent"), ("signal", "clipped")]
+)
 def test_a_faulty_burst_is_lost_and_later_frames_are_untouched(mode, kind):
     """The fault option: every frame from 1 s for 1 s is lost (NaN: dropped, or rejected by the front
     end's detector), none other is, and the frames after the burst are those of a run without the fault
@@ -62,8 +64,9 @@ def test_a_faulty_burst_is_lost_and_later_frames_are_untouched(mode, kind):
         rng = np.random.default_rng(7)
         sensor.reset(rng)
         times = 0.2 * np.arange(1, 16)
-        runs.append(np.array([sensor.measure(rng, t, SOURCE, SOURCE_VELOCITY, MOBILE, MOBILE_VELOCITY, FIXED)
-                              for t in times]))
+        runs.append(
+            np.array([sensor.measure(rng, t, SOURCE, SOURCE_VELOCITY, MOBILE, MOBILE_VELOCITY, FIXED) for t in times])
+        )
     clean, faulty = runs
     lost = np.isnan(faulty[:, 0])
     np.testing.assert_array_equal(lost, (times >= 1.0 - 1e-9) & (times < 2.0 - 1e-9))

@@ -10,14 +10,26 @@ from aasl_gym.study.log import EpisodeLog, LogMismatch
 
 
 def test_the_grid_runs_every_combination_on_the_same_seeds():
-    grid = StudyGrid(("helix", "spiral"), ("lcmap", "naive"), ("static", "ca"), episodes=3, first_seed=50,
-                     reflections=False, multipath="none", filter_model="matched", trajectories=2)
+    grid = StudyGrid(
+        ("helix", "spiral"),
+        ("lcmap", "naive"),
+        ("static", "ca"),
+        episodes=3,
+        first_seed=50,
+        reflections=False,
+        multipath="none",
+        filter_model="matched",
+        trajectories=2,
+    )
     config = EnvConfig()
     jobs = build_jobs(grid, config)
     assert len(jobs) == 2 * 2 * 2 * 3
     assert [(j.motion, j.policy, j.initializer, j.seed) for j in jobs[:4]] == [
-        ("static", "helix", "lcmap", 50), ("static", "helix", "lcmap", 51), ("static", "helix", "lcmap", 52),
-        ("static", "helix", "naive", 50)]
+        ("static", "helix", "lcmap", 50),
+        ("static", "helix", "lcmap", 51),
+        ("static", "helix", "lcmap", 52),
+        ("static", "helix", "naive", 50),
+    ]
     for policy in grid.policies:
         for initializer in grid.initializers:
             seeds = sorted(j.seed for j in jobs if (j.policy, j.initializer) == (policy, initializer))

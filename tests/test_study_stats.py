@@ -12,14 +12,33 @@ from aasl_gym.study.stats import mean_ci95, paired_comparisons, study_comparison
 DURATION = 100.0
 
 
-def row(policy="helix", seed=0, time=None, success=None, motion="static", initializer="lcmap", rmse=1.0,
-        final_error=0.5, reinitializations=0, measurement="geometric"):
+def row(
+    policy="helix",
+    seed=0,
+    time=None,
+    success=None,
+    motion="static",
+    initializer="lcmap",
+    rmse=1.0,
+    final_error=0.5,
+    reinitializations=0,
+    measurement="geometric",
+):
     """An episode row; ``success`` defaults to converging within 1 m exactly when ``time`` is set."""
     converged = time is not None
     success = {"0.5": converged, "1.0": converged, "3.0": True} if success is None else success
-    return {"policy": policy, "initializer": initializer, "motion": motion, "measurement": measurement, "seed": seed,
-            "convergence_time": time, "success": success, "rmse": rmse, "final_error": final_error,
-            "reinitializations": reinitializations}
+    return {
+        "policy": policy,
+        "initializer": initializer,
+        "motion": motion,
+        "measurement": measurement,
+        "seed": seed,
+        "convergence_time": time,
+        "success": success,
+        "rmse": rmse,
+        "final_error": final_error,
+        "reinitializations": reinitializations,
+    }
 
 
 def test_mean_ci95_is_the_student_t_interval():
@@ -46,11 +65,13 @@ def test_mean_ci95_without_enough_values():
 
 
 def test_summary_of_hand_made_rows():
-    rows = [row(seed=0, time=10.0, rmse=1.0, final_error=0.2, reinitializations=1),
-            row(seed=1, time=None, rmse=None, final_error=4.0, reinitializations=0),
-            row(seed=2, time=30.0, rmse=5.0, final_error=None, reinitializations=2),
-            row(seed=3, time=None, rmse=2.0, final_error=0.6, reinitializations=1),
-            row(policy="spiral", seed=0, time=None, rmse=None, final_error=None)]
+    rows = [
+        row(seed=0, time=10.0, rmse=1.0, final_error=0.2, reinitializations=1),
+        row(seed=1, time=None, rmse=None, final_error=4.0, reinitializations=0),
+        row(seed=2, time=30.0, rmse=5.0, final_error=None, reinitializations=2),
+        row(seed=3, time=None, rmse=2.0, final_error=0.6, reinitializations=1),
+        row(policy="spiral", seed=0, time=None, rmse=None, final_error=None),
+    ]
     helix, spiral = summarize(rows, DURATION)
     assert (helix["policy"], helix["n"], spiral["policy"], spiral["n"]) == ("helix", 4, "spiral", 1)
     assert helix["success_rate"] == {"0.5": 0.5, "1.0": 0.5, "3.0": 1.0}
@@ -69,8 +90,13 @@ def test_summary_of_hand_made_rows():
 
 
 def test_summary_groups_by_policy_initializer_motion_and_measurement():
-    rows = [row(motion=m, initializer=i, measurement=k, seed=s, time=5.0)
-            for m in ("static", "cv") for i in ("naive", "lcmap") for k in ("signal", "geometric") for s in (0, 1, 2)]
+    rows = [
+        row(motion=m, initializer=i, measurement=k, seed=s, time=5.0)
+        for m in ("static", "cv")
+        for i in ("naive", "lcmap")
+        for k in ("signal", "geometric")
+        for s in (0, 1, 2)
+    ]
     summary = summarize(rows, DURATION)
     keys = [(s["policy"], s["initializer"], s["motion"], s["measurement"]) for s in summary]
     assert keys == sorted(keys, key=str) and len(set(keys)) == 8

@@ -27,7 +27,9 @@ def test_noise_power_in_the_band_is_the_noise_level(rng):
     waveform = synthesis.Waveform.random("tone", rng)
     level = 80.0
     for baseband, rate in ((False, 200_000.0), (True, 10_000.0)):
-        silent = synthesis.synthesize(waveform, 0.0, 2.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng)
+        silent = synthesis.synthesize(
+            waveform, 0.0, 2.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng
+        )
         spectrum = np.abs(np.fft.fft(silent.mobile)) ** 2 / len(silent.times) ** 2
         frequencies = np.fft.fftfreq(len(silent.times), 1 / rate) + (waveform.carrier if baseband else 0.0)
         low, high = waveform.band

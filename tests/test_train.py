@@ -1,5 +1,6 @@
 """train.py end to end on a tiny job, and what it writes loads back with its normalization."""
 
+import itertools
 import re
 from pathlib import Path
 
@@ -13,8 +14,16 @@ from aasl_gym.config import to_dict
 from agents.sb3 import load_model, statistics_path
 
 TINY_SCHEDULE = {
-    "schedule": {"timesteps": 256, "n_envs": 1, "eval_every": 128, "eval_episodes": 1, "eval_seed": 900000,
-                 "checkpoint_every": 128, "normalize_observation": True, "normalize_reward": True},
+    "schedule": {
+        "timesteps": 256,
+        "n_envs": 1,
+        "eval_every": 128,
+        "eval_episodes": 1,
+        "eval_seed": 900000,
+        "checkpoint_every": 128,
+        "normalize_observation": True,
+        "normalize_reward": True,
+    },
     "ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 1, "gamma": 0.99},
 }
 
@@ -22,7 +31,11 @@ TINY_SCHEDULE = {
 @pytest.fixture
 def tiny(tmp_path):
     config = tmp_path / "env.yaml"
-    config.write_text(yaml.safe_dump({"episode": {"duration": 10.0}, "world": {"reflections": False}, "filter": {"multipath": "none"}}))
+    config.write_text(
+        yaml.safe_dump(
+            {"episode": {"duration": 10.0}, "world": {"reflections": False}, "filter": {"multipath": "none"}}
+        )
+    )
     hyper = tmp_path / "training.yaml"
     hyper.write_text(yaml.safe_dump(TINY_SCHEDULE))
     return config, hyper
@@ -31,7 +44,9 @@ def tiny(tmp_path):
 def test_tiny_ppo_run_writes_a_loadable_model_that_evaluate_runs(tiny, tmp_path, capsys):
     config, hyper = tiny
     out = tmp_path / "run"
-    assert train.main(["--algo", "ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
+    assert (
+        train.main(["--algo", "ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
+    )
     printed = capsys.readouterr().out
     assert "step 128" in printed and "return" in printed  # the periodic evaluation reported
     for name in ("model.zip", "model.vecnormalize.pkl", "config.yaml", "hyperparameters.yaml", "best/model.zip"):
@@ -51,13 +66,30 @@ def test_tiny_ppo_run_writes_a_loadable_model_that_evaluate_runs(tiny, tmp_path,
     np.testing.assert_array_equal(action, direct)
 
     report = tmp_path / "eval"
-    assert evaluate.main(["--policies", "helix", f"ppo:{out / 'model.zip'}", "--motions", "static", "--episodes", "1",
-                          "--config", str(config), "--no-plots", "--out", str(report)]) == 0
+    assert (
+        evaluate.main(
+            [
+                "--policies",
+                "helix",
+                f"ppo:{out / 'model.zip'}",
+                "--motions",
+                "static",
+                "--episodes",
+                "1",
+                "--config",
+                str(config),
+                "--no-plots",
+                "--out",
+                str(report),
+            ]
+        )
+        == 0
+    )
     assert f"ppo:{out / 'model.zip'}" in (report / "report.md").read_text()
 
 
 def test_bad_training_input_is_named(tiny, tmp_path, capsys):
-    config, hyper = tiny
+    config, _ = tiny
     assert train.main(["--config", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)]) == 2
     assert "--config" in capsys.readouterr().err
     broken = tmp_path / "broken.yaml"
@@ -76,7 +108,9 @@ def test_bad_training_input_is_named(tiny, tmp_path, capsys):
 def test_missing_statistics_file_is_fine_and_a_corrupt_one_is_named(tiny, tmp_path):
     config, hyper = tiny
     out = tmp_path / "run"
-    assert train.main(["--algo", "ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
+    assert (
+        train.main(["--algo", "ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
+    )
     statistics_path(out / "model.zip").write_bytes(b"not a pickle")
     with pytest.raises(ValueError, match="statistics"):
         load_model(f"ppo:{out / 'model.zip'}")
@@ -96,8 +130,10 @@ def test_training_episodes_log_their_metrics(tmp_path):
 
     metrics = make_callbacks(tmp_path, "ppo", lambda: None, [0], 10, 10, print)[2]
     metrics.model = type("Model", (), {"logger": Recorder()})()  # the callback logs through its model's logger
-    ends = [{"convergence_time": np.array(30.0), "success": {"1.0": True}, "final_error": np.array(0.4)},
-            {"convergence_time": np.array(np.nan), "success": {"1.0": False}, "final_error": np.array(2.0)}]
+    ends = [
+        {"convergence_time": np.array(30.0), "success": {"1.0": True}, "final_error": np.array(0.4)},
+        {"convergence_time": np.array(np.nan), "success": {"1.0": False}, "final_error": np.array(2.0)},
+    ]
     metrics.locals = {"infos": [ends[0], {"time": 1.0}]}  # a step where one env ended and one did not
     metrics._on_step()
     metrics.locals = {"infos": [ends[1]]}
@@ -117,7 +153,12 @@ def test_a_residual_model_is_evaluated_in_the_env_it_was_trained_on(tiny, tmp_pa
 
     config, hyper = tiny
     out = tmp_path / "run"
-    assert train.main(["--env", "AASL-Greedy-v0", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
+    assert (
+        train.main(
+            ["--env", "AASL-Greedy-v0", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]
+        )
+        == 0
+    )
     policy = load_model(f"ppo:{out / 'model.zip'}")
     assert policy.env_id == "AASL-Greedy-v0"
     with torch.no_grad():
@@ -131,9 +172,30 @@ def test_a_residual_model_is_evaluated_in_the_env_it_was_trained_on(tiny, tmp_pa
         load_model(f"ppo:{out / 'unknown.zip'}")
 
     report = tmp_path / "eval"
-    assert evaluate.main(["--policies", "greedy", f"ppo:{out / 'zero.zip'}", "--motions", "cv", "--episodes", "1", "--seed", "3",
-                          "--config", str(config), "--no-plots", "--out", str(report)]) == 0
-    greedy, zero = sorted(json.loads((report / "results.json").read_text())["episodes"], key=lambda row: row["policy"] != "greedy")
+    assert (
+        evaluate.main(
+            [
+                "--policies",
+                "greedy",
+                f"ppo:{out / 'zero.zip'}",
+                "--motions",
+                "cv",
+                "--episodes",
+                "1",
+                "--seed",
+                "3",
+                "--config",
+                str(config),
+                "--no-plots",
+                "--out",
+                str(report),
+            ]
+        )
+        == 0
+    )
+    greedy, zero = sorted(
+        json.loads((report / "results.json").read_text())["episodes"], key=lambda row: row["policy"] != "greedy"
+    )
     assert greedy["policy"] == "greedy" and zero["policy"].endswith("zero.zip")
     for key in ("convergence_time", "rmse", "final_error", "time_to_first_estimate"):
         if greedy[key] is None:  # a convergence time of an episode that never converged
@@ -157,16 +219,29 @@ def test_the_shipped_default_policy_loads_with_its_statistics_and_env():
 def test_a_recurrent_policy_trains_and_is_evaluated_with_its_memory_carried(tiny, tmp_path):
     """recurrent-ppo (sb3-contrib) runs end to end, and an episode hands the LSTM state returned by each
     step's prediction to the next one (reset only at the episode's start)."""
-    from agents.rollout import play_episode
     from aasl_gym.env import AASLEnv
     from aasl_gym.registration import ENV_IDS
+    from agents.rollout import play_episode
 
     config, hyper = tiny
-    schedule = {**TINY_SCHEDULE, "recurrent-ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 1, "gamma": 0.99,
-                                                   "policy_kwargs": {"lstm_hidden_size": 16}}}
+    schedule = {
+        **TINY_SCHEDULE,
+        "recurrent-ppo": {
+            "n_steps": 64,
+            "batch_size": 32,
+            "n_epochs": 1,
+            "gamma": 0.99,
+            "policy_kwargs": {"lstm_hidden_size": 16},
+        },
+    }
     hyper.write_text(yaml.safe_dump(schedule))
     out = tmp_path / "run"
-    assert train.main(["--algo", "recurrent-ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
+    assert (
+        train.main(
+            ["--algo", "recurrent-ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]
+        )
+        == 0
+    )
     policy = load_model(f"recurrent-ppo:{out / 'model.zip'}")
 
     calls = []
@@ -180,7 +255,7 @@ def test_a_recurrent_policy_trains_and_is_evaluated_with_its_memory_carried(tiny
     env = AASLEnv(str(config), patrol=ENV_IDS[policy.env_id])
     play_episode(env, Recording(), seed=0)
     assert calls[0][0] is None and calls[0][1]
-    assert all(not start and state is previous for (_, _, previous), (state, start, _) in zip(calls, calls[1:]))
+    assert all(not start and state is previous for (_, _, previous), (state, start, _) in itertools.pairwise(calls))
     hidden = np.asarray(calls[-1][2][0])
     assert hidden.shape[-1] == 16 and np.any(hidden != 0)  # the memory holds something after an episode
 
@@ -200,21 +275,26 @@ def test_the_schedule_is_validated_with_the_key_named(tmp_path):
     assert schedule.eval_seeds == list(range(900000, 900006))
     tiny = schedule_from_dict(TINY_SCHEDULE["schedule"])
     assert tiny.env == "AASL-v0" and tiny.normalize_observation  # an omitted env keeps the default
-    bad = [("timesteps", "many", "schedule.timesteps: must be an integer"),
-           ("n_envs", 0, "schedule.n_envs: must be an integer >= 1"),
-           ("eval_seed", -1, "schedule.eval_seed: must be an integer >= 0"),
-           ("normalize_reward", "yes", "schedule.normalize_reward: must be true or false"),
-           ("env", "AASL-v9", "schedule.env: 'AASL-v9' is not one of"),
-           ("eval_evry", 10, "schedule.eval_evry: unknown key")]
+    bad = [
+        ("timesteps", "many", "schedule.timesteps: must be an integer"),
+        ("n_envs", 0, "schedule.n_envs: must be an integer >= 1"),
+        ("eval_seed", -1, "schedule.eval_seed: must be an integer >= 0"),
+        ("normalize_reward", "yes", "schedule.normalize_reward: must be true or false"),
+        ("env", "AASL-v9", "schedule.env: 'AASL-v9' is not one of"),
+        ("eval_evry", 10, "schedule.eval_evry: unknown key"),
+    ]
     for key, value, message in bad:
         with pytest.raises(ConfigError, match=re.escape(message)):
             schedule_from_dict({**TINY_SCHEDULE["schedule"], key: value})
     with pytest.raises(ConfigError, match=r"schedule needs integer .* \(missing: \['n_envs'"):
         schedule_from_dict({"timesteps": 10})
-    with pytest.raises(ConfigError, match="schedule.timesteps"):
+    with pytest.raises(ConfigError, match=r"schedule\.timesteps"):
         tiny.replace(timesteps=0)
-    files = [("ppo: {}", "needs a 'schedule' section"), ("schedule: {}\nppo: 3", "ppo: must be a mapping"),
-             ("schedule: [", "not valid YAML")]
+    files = [
+        ("ppo: {}", "needs a 'schedule' section"),
+        ("schedule: {}\nppo: 3", "ppo: must be a mapping"),
+        ("schedule: [", "not valid YAML"),
+    ]
     for text, message in files:
         (tmp_path / "h.yaml").write_text(text)
         with pytest.raises(ConfigError, match=re.escape(message)):
@@ -241,7 +321,10 @@ def test_rl_zoo3_hyperparameters_are_those_of_training_yaml(algo):
         params = dict(params)
         assert params.pop("n_timesteps") == schedule["timesteps"] and params.pop("n_envs") == schedule["n_envs"], env_id
         assert params.pop("policy") == "MlpPolicy"
-        assert eval(params.pop("normalize")) == {"norm_obs": schedule["normalize_observation"], "norm_reward": schedule["normalize_reward"]}
+        assert eval(params.pop("normalize")) == {
+            "norm_obs": schedule["normalize_observation"],
+            "norm_reward": schedule["normalize_reward"],
+        }
         if "policy_kwargs" in params:
             params["policy_kwargs"] = eval(params["policy_kwargs"])
         assert params == expected, env_id
@@ -257,10 +340,32 @@ def test_rl_zoo3_trains_the_env_with_the_shipped_hyperparameters(tmp_path):
 
     from stable_baselines3 import PPO
 
-    command = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", "AASL-Greedy-v0", "--gym-packages", "aasl_gym",
-               "--conf-file", str(ZOO / "ppo.yml"), "-n", "1200", "--eval-freq", "-1", "--seed", "0", "--log-folder", str(tmp_path),
-               "--env-kwargs", "measurement:'geometric'"]
-    result = subprocess.run(command, capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parent.parent)
+    command = [
+        sys.executable,
+        "-m",
+        "rl_zoo3.train",
+        "--algo",
+        "ppo",
+        "--env",
+        "AASL-Greedy-v0",
+        "--gym-packages",
+        "aasl_gym",
+        "--conf-file",
+        str(ZOO / "ppo.yml"),
+        "-n",
+        "1200",
+        "--eval-freq",
+        "-1",
+        "--seed",
+        "0",
+        "--log-folder",
+        str(tmp_path),
+        "--env-kwargs",
+        "measurement:'geometric'",
+    ]
+    result = subprocess.run(
+        command, capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parent.parent
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     (model,) = tmp_path.glob("ppo/AASL-Greedy-v0_*/AASL-Greedy-v0.zip")
     assert PPO.load(model).n_envs == 2

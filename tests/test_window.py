@@ -71,7 +71,16 @@ def test_the_robust_loss_shrugs_off_gross_outliers():
     corrupted = burst.measurements.copy()
     corrupted[40:44, 0] += 3.0  # a few frames 3 m off in RD (60 sd) and 1 m/s off in RRD
     corrupted[90:94, 1] += 1.0
-    burst = Burst(burst.times, corrupted, burst.receiver_positions, burst.receiver_velocities, FIXED, NOISE, 1.5, direct_measurement)
+    burst = Burst(
+        burst.times,
+        corrupted,
+        burst.receiver_positions,
+        burst.receiver_velocities,
+        FIXED,
+        NOISE,
+        1.5,
+        direct_measurement,
+    )
     mean, sd = prior(model)
     mean[-2] = truth[-2]
     plain = fit_window(burst, model, truth[None], mean, sd, iterations=15)

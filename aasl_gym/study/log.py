@@ -4,9 +4,10 @@ finished episode, appended and flushed as each one arrives."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 from aasl_gym.io import atomic_write_text
 
@@ -55,6 +56,7 @@ class EpisodeLog:
     def appending(self) -> Iterator[Callable[[tuple, dict], None]]:
         """A function that appends one episode's line (its key and row) and flushes it at once."""
         with open(self.path, "a") as handle:
+
             def append(key: tuple, row: dict) -> None:
                 handle.write(json.dumps({"key": key, "row": row}) + "\n")
                 handle.flush()

@@ -37,8 +37,10 @@ def write_plots(out: Path, rows: list[Row], summary: list[Row]) -> list[str]:
     """The convergence-time boxes and the success-against-threshold curves; returns their file names."""
     groups = sorted({(s["policy"], s["initializer"]) for s in summary}, key=str)
     motions = sorted({s["motion"] for s in summary}, key=_motion_order)
-    return [_save(_convergence_boxes(rows, groups, motions), out, "convergence_time.png", 110),
-            _save(_success_curves(summary, groups, motions), out, "success_vs_threshold.png", 110)]
+    return [
+        _save(_convergence_boxes(rows, groups, motions), out, "convergence_time.png", 110),
+        _save(_success_curves(summary, groups, motions), out, "success_vs_threshold.png", 110),
+    ]
 
 
 def _convergence_boxes(rows: list[Row], groups: list[tuple[str, str]], motions: list[str]) -> Figure:
@@ -46,9 +48,15 @@ def _convergence_boxes(rows: list[Row], groups: list[tuple[str, str]], motions: 
     ax = figure.subplots()
     width = 0.8 / max(1, len(groups))
     for g, (policy, initializer) in enumerate(groups):
-        data = [[r["convergence_time"] for r in rows
-                 if (r["policy"], r["initializer"], r["motion"]) == (policy, initializer, m)
-                 and r["convergence_time"] is not None] for m in motions]
+        data = [
+            [
+                r["convergence_time"]
+                for r in rows
+                if (r["policy"], r["initializer"], r["motion"]) == (policy, initializer, m)
+                and r["convergence_time"] is not None
+            ]
+            for m in motions
+        ]
         positions = np.arange(len(motions)) + (g - (len(groups) - 1) / 2) * width
         filled = [d if d else [np.nan] for d in data]
         parts = ax.boxplot(filled, positions=positions, widths=width * 0.9, patch_artist=True, manage_ticks=False)
@@ -70,11 +78,17 @@ def _success_curves(summary: list[Row], groups: list[tuple[str, str]], motions: 
     thresholds = [str(float(t)) for t in SUCCESS_THRESHOLDS]
     for ax, motion in zip(axes, motions):
         for g, (policy, initializer) in enumerate(groups):
-            match = [s for s in summary
-                     if (s["policy"], s["initializer"], s["motion"]) == (policy, initializer, motion)]
+            match = [
+                s for s in summary if (s["policy"], s["initializer"], s["motion"]) == (policy, initializer, motion)
+            ]
             if match:
-                ax.plot(SUCCESS_THRESHOLDS, [match[0]["success_rate"][t] for t in thresholds], "o-", color=f"C{g}",
-                        label=f"{policy} / {initializer}")
+                ax.plot(
+                    SUCCESS_THRESHOLDS,
+                    [match[0]["success_rate"][t] for t in thresholds],
+                    "o-",
+                    color=f"C{g}",
+                    label=f"{policy} / {initializer}",
+                )
         ax.set_xscale("log")
         ax.set_xticks(SUCCESS_THRESHOLDS, [f"{t:g}" for t in SUCCESS_THRESHOLDS])
         ax.set_title(motion)
@@ -94,8 +108,17 @@ def write_trajectory_plots(out: Path, trajectories: list[Trajectory], config: En
     for motion in sorted({t[1] for t in trajectories}, key=_motion_order):
         episodes = sorted((t for t in trajectories if t[1] == motion), key=lambda t: (t[0], t[2]))
         figure = Figure(figsize=(10, 4.2 * len(episodes)))
-        for panel, (policy, _, seed, paths) in zip(np.atleast_1d(figure.subfigures(len(episodes), 1)), episodes):
-            draw_episode(panel, paths, fixed, None, config.episode.duration, config,
-                         title=f"{policy}, {motion} source, seed {seed}")
+        # subfigures() returns a lone SubFigure for one episode; its stubs do not let atleast_1d take it.
+        panels = np.atleast_1d(figure.subfigures(len(episodes), 1))  # type: ignore[arg-type]
+        for panel, (policy, _, seed, paths) in zip(panels, episodes):
+            draw_episode(
+                panel,
+                paths,
+                fixed,
+                None,
+                config.episode.duration,
+                config,
+                title=f"{policy}, {motion} source, seed {seed}",
+            )
         names.append(_save(figure, out, f"trajectories_{motion}.png", 80))
     return names

@@ -41,70 +41,96 @@ def plain_summary(summary: list[Row]) -> list[str]:
         rows = [s for s in summary if s["motion"] == motion]
         best = max(rows, key=lambda s: (s["success_rate"]["1.0"], -(s["mean_convergence_time_censored"] or math.inf)))
         others = ", ".join(f"{label(s)} {s['success_rate']['1.0']:.0%}" for s in rows if s is not best)
-        sentences.append(f"{motion.upper() if motion != 'static' else 'Static'} sources: {label(best)} found and kept "
-                         f"the source to within 1 m in {best['success_rate']['1.0']:.0%} of {best['n']} "
-                         f"episode{'s' * (best['n'] != 1)}" + (f" ({others})." if others else "."))
+        sentences.append(
+            f"{motion.upper() if motion != 'static' else 'Static'} sources: {label(best)} found and kept "
+            f"the source to within 1 m in {best['success_rate']['1.0']:.0%} of {best['n']} "
+            f"episode{'s' * (best['n'] != 1)}" + (f" ({others})." if others else ".")
+        )
     busiest = max(summary, key=lambda s: s["mean_reinitializations"])
-    sentences.append(f"The tracker re-initialized {min(s['mean_reinitializations'] for s in summary):.1f}-"
-                     f"{busiest['mean_reinitializations']:.1f} times per episode on average "
-                     f"(most: {label(busiest)}, {busiest['motion']}).")
+    sentences.append(
+        f"The tracker re-initialized {min(s['mean_reinitializations'] for s in summary):.1f}-"
+        f"{busiest['mean_reinitializations']:.1f} times per episode on average "
+        f"(most: {label(busiest)}, {busiest['motion']})."
+    )
     fewest = min(s["n"] for s in summary)
-    sentences.append(f"With {fewest} episodes per combination a success share is known to about "
-                     f"+-{98 / math.sqrt(fewest):.0f} points (95 %); smaller differences may be chance.")
+    sentences.append(
+        f"With {fewest} episodes per combination a success share is known to about "
+        f"+-{98 / math.sqrt(fewest):.0f} points (95 %); smaller differences may be chance."
+    )
     return ["In short: " + " ".join(sentences), ""]
 
 
 def _setup(config: EnvConfig) -> str:
     """One paragraph on the measurements, navigation, reflections, filter and episode."""
     if config.measurement.mode == "geometric":
-        measurements = (f"Measurement noise: sigma_R = {config.measurement.range_difference_sd} m, "
-                        f"sigma_V = {config.measurement.range_rate_difference_sd} m/s; ")
+        measurements = (
+            f"Measurement noise: sigma_R = {config.measurement.range_difference_sd} m, "
+            f"sigma_V = {config.measurement.range_rate_difference_sd} m/s; "
+        )
     else:
-        measurements = (f"Measurements: the acoustic front end ({config.signal.path} path, "
-                        f"{config.signal.frame_duration} s frames, source level {config.source.source_level_db} dB, "
-                        f"noise level {config.world.noise_level_db} dB; R from each frame's SNR); ")
-    return (measurements + f"navigation sigma_rov = {config.receiver.nav_position_sd} m; "
-            f"reflections {'on' if config.world.reflections else 'off'}; filter multipath model "
-            f"`{config.filter_multipath}`; episode {config.episode.duration:.0f} s at "
-            f"{config.measurement.rate:.0f} Hz.")
+        measurements = (
+            f"Measurements: the acoustic front end ({config.signal.path} path, "
+            f"{config.signal.frame_duration} s frames, source level {config.source.source_level_db} dB, "
+            f"noise level {config.world.noise_level_db} dB; R from each frame's SNR); "
+        )
+    return (
+        measurements + f"navigation sigma_rov = {config.receiver.nav_position_sd} m; "
+        f"reflections {'on' if config.world.reflections else 'off'}; filter multipath model "
+        f"`{config.filter_multipath}`; episode {config.episode.duration:.0f} s at "
+        f"{config.measurement.rate:.0f} Hz."
+    )
 
 
 def _summary_line(s: Row) -> str:
     ci = s["convergence_time_ci95"]
     rates = s["success_rate"]
-    return (f"| {s['policy']} | {s['initializer']} | {s['motion']} | {s['n']} | "
-            f"{rates['0.5']:.0%} | {rates['1.0']:.0%} | {rates['3.0']:.0%} | "
-            f"{_fmt(s['mean_convergence_time'])} [{_fmt(ci[0])}, {_fmt(ci[1])}] | "
-            f"{_fmt(s['mean_convergence_time_censored'])} | {_fmt(s['rmse_median'], 2)} | "
-            f"{_fmt(s['final_error_median'], 2)} | {s['mean_reinitializations']:.1f} |")
+    return (
+        f"| {s['policy']} | {s['initializer']} | {s['motion']} | {s['n']} | "
+        f"{rates['0.5']:.0%} | {rates['1.0']:.0%} | {rates['3.0']:.0%} | "
+        f"{_fmt(s['mean_convergence_time'])} [{_fmt(ci[0])}, {_fmt(ci[1])}] | "
+        f"{_fmt(s['mean_convergence_time_censored'])} | {_fmt(s['rmse_median'], 2)} | "
+        f"{_fmt(s['final_error_median'], 2)} | {s['mean_reinitializations']:.1f} |"
+    )
 
 
 def _comparison_section(field: str, rows: list[Row]) -> list[str]:
     plural = {"policy": "policies", "initializer": "initializers"}[field]
-    lines = ["", f"## Paired comparison of {plural} against `{rows[0]['baseline']}` (same seeds)", "",
-             f"| {field} | motion | pairs | both converged | time ratio (both converged) | time ratio (censored) "
-             "| time difference (censored) [95 % CI] (s) | success 1 m difference |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "",
+        f"## Paired comparison of {plural} against `{rows[0]['baseline']}` (same seeds)",
+        "",
+        f"| {field} | motion | pairs | both converged | time ratio (both converged) | time ratio (censored) "
+        "| time difference (censored) [95 % CI] (s) | success 1 m difference |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for c in rows:
         ci = c["time_difference_censored_ci95"]
-        lines.append(f"| {c[field]} | {c['motion']} | {c['pairs']} | {c['both_converged']} | "
-                     f"{_fmt(c['time_ratio_both'], 2)} | {_fmt(c['time_ratio_censored'], 2)} | "
-                     f"{_fmt(c['time_difference_censored'])} [{_fmt(ci[0])}, {_fmt(ci[1])}] | "
-                     f"{c['success_difference_1m']:+.0%} |")
+        lines.append(
+            f"| {c[field]} | {c['motion']} | {c['pairs']} | {c['both_converged']} | "
+            f"{_fmt(c['time_ratio_both'], 2)} | {_fmt(c['time_ratio_censored'], 2)} | "
+            f"{_fmt(c['time_difference_censored'])} [{_fmt(ci[0])}, {_fmt(ci[1])}] | "
+            f"{c['success_difference_1m']:+.0%} |"
+        )
     return lines
 
 
-def write_report(path: Path, command: str, config: EnvConfig, summary: list[Row],
-                 comparisons: dict[str, list[Row]], plots: list[str]) -> None:
+def write_report(
+    path: Path, command: str, config: EnvConfig, summary: list[Row], comparisons: dict[str, list[Row]], plots: list[str]
+) -> None:
     """``report.md``, atomically: ``config`` is the one the episodes ran with, ``plots`` the figures'
     file names beside it."""
     lines = [
-        "# AASL-Gym evaluation", "",
+        "# AASL-Gym evaluation",
+        "",
         *plain_summary(summary),
-        f"Command: `{command}`", "",
-        _setup(config), "",
-        DEFINITIONS, "",
-        "## Summary", "",
+        f"Command: `{command}`",
+        "",
+        _setup(config),
+        "",
+        DEFINITIONS,
+        "",
+        "## Summary",
+        "",
         *SUMMARY_HEADER,
         *(_summary_line(s) for s in summary),
     ]
@@ -116,21 +142,33 @@ def write_report(path: Path, command: str, config: EnvConfig, summary: list[Row]
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
-def write_results(path: Path, command: str, config: EnvConfig, rows: list[Row], summary: list[Row],
-                  comparisons: dict[str, list[Row]]) -> None:
+def write_results(
+    path: Path, command: str, config: EnvConfig, rows: list[Row], summary: list[Row], comparisons: dict[str, list[Row]]
+) -> None:
     """``results.json``, atomically: ``{"command", "config", "episodes", "summary", "comparisons"}``
     (the schema of the project's spec; rows without their recorded paths)."""
-    atomic_write_json(path, {"command": command, "config": to_dict(config), "episodes": rows, "summary": summary,
-                             "comparisons": comparisons})
+    atomic_write_json(
+        path,
+        {
+            "command": command,
+            "config": to_dict(config),
+            "episodes": rows,
+            "summary": summary,
+            "comparisons": comparisons,
+        },
+    )
 
 
 def console_table(summary: list[Row]) -> list[str]:
     """The summary's main columns as fixed-width text lines."""
     width = max(len("policy"), *(len(s["policy"]) for s in summary))  # a model's name carries its path
-    lines = [f"{'policy':<{width}} {'initializer':<11} {'motion':<7} {'n':>4} {'succ@1m':>8} {'conv (s)':>9} "
-             f"{'RMSE med':>9}"]
+    lines = [
+        f"{'policy':<{width}} {'initializer':<11} {'motion':<7} {'n':>4} {'succ@1m':>8} {'conv (s)':>9} {'RMSE med':>9}"
+    ]
     for s in summary:
-        lines.append(f"{s['policy']:<{width}} {s['initializer']:<11} {s['motion']:<7} {s['n']:>4} "
-                     f"{s['success_rate']['1.0']:>8.0%} {_fmt(s['mean_convergence_time']):>9} "
-                     f"{_fmt(s['rmse_median'], 2):>9}")
+        lines.append(
+            f"{s['policy']:<{width}} {s['initializer']:<11} {s['motion']:<7} {s['n']:>4} "
+            f"{s['success_rate']['1.0']:>8.0%} {_fmt(s['mean_convergence_time']):>9} "
+            f"{_fmt(s['rmse_median'], 2):>9}"
+        )
     return lines

@@ -10,12 +10,13 @@ from __future__ import annotations
 import logging
 import math
 import multiprocessing
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -72,8 +73,14 @@ def run_episode(job: Job) -> dict[str, Any]:
     noise and metrics for the same seed."""
     policy = trained_model(job.policy) if ":" in job.policy else None
     patrol = ENV_IDS[policy.env_id] if policy is not None else None
-    env = AASLEnv(job.config, source_motion=job.motion, initializer=job.initializer, measurement=job.measurement,
-                  filter_model=job.filter_model, patrol=patrol)
+    env = AASLEnv(
+        job.config,
+        source_motion=job.motion,
+        initializer=job.initializer,
+        measurement=job.measurement,
+        filter_model=job.filter_model,
+        patrol=patrol,
+    )
     if policy is None:
         policy = make_policy(job.policy, env.config, seed=job.seed)
     info = play_episode(env, policy, job.seed)
@@ -97,8 +104,13 @@ def run_episode(job: Job) -> dict[str, Any]:
     return row
 
 
-def run_jobs(jobs: list[Job], done: dict[tuple, dict], log: EpisodeLog, backend: Backend,
-             on_row: Callable[[], Any] = lambda: None) -> list[dict[str, Any]]:
+def run_jobs(
+    jobs: list[Job],
+    done: dict[tuple, dict],
+    log: EpisodeLog,
+    backend: Backend,
+    on_row: Callable[[], Any] = lambda: None,
+) -> list[dict[str, Any]]:
     """Every job's row, in the jobs' order: from ``done`` (rows by :func:`episode_key`, as an earlier run
     logged them) or run now on ``backend``, each new row appended to ``log`` and to ``done`` as it arrives
     (then ``on_row()``), so an interrupted study loses nothing."""

@@ -8,7 +8,8 @@ censored statistics count such an episode as the full episode ``duration``.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -50,7 +51,10 @@ def _summary_row(key: tuple[str, str, str, str], group: list[Row], duration: flo
     rmses = [r["rmse"] for r in group if r["rmse"] is not None]
     finals = [r["final_error"] for r in group if r["final_error"] is not None]
     return {
-        "policy": policy, "initializer": initializer, "motion": motion, "measurement": measurement,
+        "policy": policy,
+        "initializer": initializer,
+        "motion": motion,
+        "measurement": measurement,
         "n": len(group),
         "success_rate": {k: float(np.mean([r["success"][k] for r in group])) for k in group[0]["success"]},
         "mean_convergence_time": mean,
@@ -75,8 +79,11 @@ def paired_comparisons(rows: list[Row], duration: float, field: str, baseline: s
     others = sorted({r[field] for r in rows} - {baseline})
     for motion in sorted({r["motion"] for r in rows}):
         for other in others:
-            pairs = [(index[(other, m, s, k)], index[(baseline, m, s, k)]) for (f, m, s, k) in index
-                     if f == other and m == motion and (baseline, m, s, k) in index]
+            pairs = [
+                (index[(other, m, s, k)], index[(baseline, m, s, k)])
+                for (f, m, s, k) in index
+                if f == other and m == motion and (baseline, m, s, k) in index
+            ]
             if pairs:
                 out.append({field: other, "baseline": baseline, "motion": motion, **_compare_pairs(pairs, duration)})
     return out
@@ -84,25 +91,39 @@ def paired_comparisons(rows: list[Row], duration: float, field: str, baseline: s
 
 def _compare_pairs(pairs: list[tuple[Row, Row]], duration: float) -> Row:
     """The comparison of each pair's first row against its second (the baseline's)."""
-    both = [(a["convergence_time"], b["convergence_time"]) for a, b in pairs
-            if a["convergence_time"] is not None and b["convergence_time"] is not None]
-    censored = np.array([[duration if a["convergence_time"] is None else a["convergence_time"],
-                          duration if b["convergence_time"] is None else b["convergence_time"]] for a, b in pairs])
+    both = np.array(
+        [
+            (a["convergence_time"], b["convergence_time"])
+            for a, b in pairs
+            if a["convergence_time"] is not None and b["convergence_time"] is not None
+        ]
+    ).reshape(-1, 2)
+    censored = np.array(
+        [
+            [
+                duration if a["convergence_time"] is None else a["convergence_time"],
+                duration if b["convergence_time"] is None else b["convergence_time"],
+            ]
+            for a, b in pairs
+        ]
+    )
     diff_mean, diff_ci = mean_ci95(censored[:, 0] - censored[:, 1])
-    both = np.array(both).reshape(-1, 2)
     ratio_both = float(both[:, 0].mean() / both[:, 1].mean()) if len(both) and both[:, 1].mean() > 0 else None
     success = np.mean([a["success"]["1.0"] for a, _ in pairs]) - np.mean([b["success"]["1.0"] for _, b in pairs])
     return {
-        "pairs": len(pairs), "both_converged": len(both),
+        "pairs": len(pairs),
+        "both_converged": len(both),
         "time_ratio_both": ratio_both,
         "time_ratio_censored": float(censored[:, 0].mean() / censored[:, 1].mean()),
-        "time_difference_censored": diff_mean, "time_difference_censored_ci95": diff_ci,
+        "time_difference_censored": diff_mean,
+        "time_difference_censored_ci95": diff_ci,
         "success_difference_1m": float(success),
     }
 
 
-def study_comparisons(rows: list[Row], duration: float, policies: Sequence[str],
-                      initializers: Sequence[str]) -> dict[str, list[Row]]:
+def study_comparisons(
+    rows: list[Row], duration: float, policies: Sequence[str], initializers: Sequence[str]
+) -> dict[str, list[Row]]:
     """The paired comparisons a study reports: initializers against ``naive`` (or the first), when it
     has several; policies against ``helix`` (or the first), when it has several."""
     comparisons = {}
