@@ -98,7 +98,8 @@ class AASLEnv(gym.Env):
     stops explaining the data; the reported estimate is the likeliest filter's (``aasl_gym.estimator``).
     ``measurement.mode`` chooses how [RD, RRD] is made (``aasl_gym.sensors``): ``signal``, the default
     (``aasl_gym.synthesis`` synthesizes both channels for a 0.2 s frame each step, the front end of
-    ``aasl_gym.frontend`` processes them, and the filter's R follows each frame's measured SNR), or
+    ``aasl_gym.frontend`` processes them, the filter's R follows each frame's measured SNR, and its
+    multipath model is the frame's mean and slope, as the front end measures them), or
     ``geometric`` (the geometry plus Gaussian noise, as in the reference paper's study).
 
     ## Action Space

@@ -23,7 +23,10 @@ above ``filter.ripple_lock_sd``, not yet ``resolved``) sees the correction at it
 sigma point and the correction's spread as noise. When its sd falls below ``ripple_split_sd`` it picks
 its point on the ripple from a small lattice weighed on the recent window (:meth:`_resolve_ripple`).
 LC-MAP and the re-seed windows weigh candidates metres apart, with the direct path and the ripple's
-spread over the volume (:func:`~aasl_gym.measurements.multipath_spread`) as robust (soft-L1) noise.
+spread over the volume (:func:`~aasl_gym.measurement_models.multipath_spread`) as robust (soft-L1) noise.
+In signal mode the phasor model is the frame's mean and least-squares slope of the RD
+(:func:`~aasl_gym.measurement_models.frame_averaged`): the tone front end measures those, and at an
+interference null they differ from the frame centre's value by many sd.
 
 Re-seeding. Two seconds seldom show *where* on its sheet the source is, so after an LC-MAP start
 LC-MAP re-runs every ``initializer.reseed_interval`` on the growing window, up to ``reseed_until``,
