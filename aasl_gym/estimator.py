@@ -86,6 +86,7 @@ from aasl_gym.measurement_models import (
     frame_offsets,
     multipath_measurement,
     multipath_spread,
+    phasor_range_difference,
     receiver_jacobian,
     receiver_noise,
 )
@@ -162,9 +163,8 @@ class SourceTracker:
             # The front end's RD and RRD are a frame's mean and slope: at an interference null the phasor
             # model's centre value misses them by many sd (tuning seeds 0-2: 12 % of RD frames beyond 3 sd).
             offsets = frame_offsets(config.signal.frame_duration, f.frame_samples)
-            self.measurement_function = partial(
-                frame_averaged, self.measurement_function, offsets, self.propagation.wavenumber
-            )
+            range_difference = partial(phasor_range_difference, self.propagation)
+            self.measurement_function = partial(frame_averaged, range_difference, offsets, self.propagation.wavenumber)
         self.window_function = direct_measurement if self.ripple else self.measurement_function
         self.sigma_spread = merwe_weights(self.model.dim, f.alpha, f.beta, f.kappa)[2]
         # What the phasor model's correction adds when unresolved: LC-MAP and the re-seed windows weigh

@@ -137,18 +137,58 @@ def _multipath_phase(
     S = sum_k a_k / r_k exp(-j k r_k) over the direct path (a = 1) and the images, so
     M = 1 + sum_images a_i (d / r_i) exp(-j k (r_i - d)).
     """
-    direct, unit = ranges(source, receiver)
+    direct, unit, terms = _image_terms(source, receiver, images, gains, wavenumber)
     direct_rate = range_rate(unit, source_velocity, receiver_velocity)
     factor = np.ones(np.shape(direct), dtype=complex)
     factor_rate = np.zeros(np.shape(direct), dtype=complex)
-    for (image, image_velocity), gain in zip(images, gains):
-        image_range, image_unit = ranges(image, receiver)
+    for (term, image_range, image_unit), (_, image_velocity) in zip(terms, images):
         image_rate = range_rate(image_unit, image_velocity, receiver_velocity)
-        term = gain * direct / image_range * np.exp(-1j * wavenumber * (image_range - direct))
         factor = factor + term
         log_rate = direct_rate / direct - image_rate / image_range - 1j * wavenumber * (image_rate - direct_rate)
         factor_rate = factor_rate + term * log_rate
     return np.angle(factor), np.imag(factor_rate / factor), direct, direct_rate
+
+
+def _image_terms(
+    source: np.ndarray,
+    receiver: np.ndarray,
+    images: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    gains: tuple[float, float],
+    wavenumber: float,
+) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """The direct path's range (m) and unit vector at ``receiver``, and each image's term of the
+    multipath factor, a_i (d / r_i) exp(-j k (r_i - d)), with its range r_i (m) and unit vector."""
+    direct, unit = ranges(source, receiver)
+    terms = []
+    for (image, _), gain in zip(images, gains):
+        image_range, image_unit = ranges(image, receiver)
+        term = gain * direct / image_range * np.exp(-1j * wavenumber * (image_range - direct))
+        terms.append((term, image_range, image_unit))
+    return direct, unit, terms
+
+
+def phasor_range_difference(
+    source: np.ndarray,
+    mobile: np.ndarray,
+    fixed: np.ndarray,
+    water_depth: float,
+    surface_reflection: float,
+    bed_reflection: float,
+    wavenumber: float,
+) -> np.ndarray:
+    """The apparent RD (m) of :func:`phasor_multipath` alone, to the last bit, without the rates: what a
+    frame's RD track is made of (its slope is the frame's RRD), at about two thirds of the cost."""
+    gains = (surface_reflection, bed_reflection)
+    images = image_sources(source, np.zeros_like(source), water_depth)
+    phases, direct_ranges = [], []
+    for receiver in (mobile, fixed):
+        direct, _, terms = _image_terms(source, receiver, images, gains, wavenumber)
+        factor = np.ones(np.shape(direct), dtype=complex)
+        for term, _, _ in terms:
+            factor = factor + term
+        phases.append(np.angle(factor))
+        direct_ranges.append(direct)
+    return (direct_ranges[0] - direct_ranges[1]) + (phases[1] - phases[0]) / wavenumber
 
 
 def phasor_multipath(

@@ -80,12 +80,20 @@ def multipath_measurement(
 
 
 def frame_averaged(
-    measurement_function, offsets: np.ndarray, wavenumber: float, position, velocity, mobile, mobile_velocity, fixed
+    range_difference_function,
+    offsets: np.ndarray,
+    wavenumber: float,
+    position,
+    velocity,
+    mobile,
+    mobile_velocity,
+    fixed,
 ) -> np.ndarray:
     """[RD, RRD] (..., 2) as a tone front end measures them over one frame: the mean and the least-squares
-    time slope of ``measurement_function``'s RD at ``offsets`` (s, about the frame's centre), the source
-    and the mobile hydrophone moving straight on at their velocities meanwhile; the RD track unwrapped
-    across the offsets (wavenumber k, rad/m) as the front end unwraps its windows' delays.
+    time slope of the RD (``range_difference_function``: (p, p_m, p_f) -> RD, m) at ``offsets`` (s, about
+    the frame's centre), the source and the mobile hydrophone moving straight on at their velocities
+    meanwhile; the RD track unwrapped across the offsets (wavenumber k, rad/m) as the front end unwraps its
+    windows' delays.
 
     Where a receiver's multipath sum passes near zero its phase turns by up to pi within a frame: the
     centre's RD and instantaneous RRD then differ from the frame's mean and slope by many sd.
@@ -93,17 +101,23 @@ def frame_averaged(
     offsets = np.asarray(offsets, dtype=float)
     velocity, mobile_velocity = np.asarray(velocity, dtype=float), np.asarray(mobile_velocity, dtype=float)
     along = offsets[:, None]
-    rd = measurement_function(
+    rd = range_difference_function(
         np.asarray(position, dtype=float)[..., None, :] + along * velocity[..., None, :],
-        velocity[..., None, :],
         np.asarray(mobile, dtype=float)[..., None, :] + along * mobile_velocity[..., None, :],
-        mobile_velocity[..., None, :],
         fixed,
-    )[..., 0]
+    )
     rd = np.unwrap(rd * wavenumber, axis=-1) / wavenumber
     mean = rd.mean(axis=-1)
     slope = (rd - mean[..., None]) @ offsets / (offsets @ offsets) if len(offsets) > 1 else np.zeros_like(mean)
     return np.stack([mean, slope], axis=-1)
+
+
+def phasor_range_difference(propagation: Propagation, position, mobile, fixed) -> np.ndarray:
+    """The phasor model's apparent RD (m) alone (:func:`~aasl_gym.geometry.phasor_range_difference`)."""
+    p = propagation
+    return geometry.phasor_range_difference(
+        position, mobile, fixed, p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber
+    )
 
 
 def frame_offsets(duration: float, samples: int) -> np.ndarray:

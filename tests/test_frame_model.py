@@ -6,7 +6,13 @@ from functools import partial
 import numpy as np
 
 from aasl_gym import frontend, geometry, synthesis
-from aasl_gym.measurement_models import Propagation, frame_averaged, frame_offsets, multipath_measurement
+from aasl_gym.measurement_models import (
+    Propagation,
+    frame_averaged,
+    frame_offsets,
+    multipath_measurement,
+    phasor_range_difference,
+)
 
 FIXED = np.array([0.0, 0.0, -0.96])
 C = 1500.0
@@ -16,8 +22,8 @@ def test_a_track_linear_in_time_averages_to_its_centre_and_its_rate(rng):
     """RD = the source's x coordinate moves linearly over the frame: its mean is the centre's value and its
     least-squares slope the x velocity, exactly, for any number of samples."""
 
-    def x_coordinate(position, velocity, mobile, mobile_velocity, fixed):
-        return np.stack(np.broadcast_arrays(position[..., 0], mobile[..., 0] * 0), axis=-1)
+    def x_coordinate(position, mobile, fixed):
+        return position[..., 0] + 0 * mobile[..., 0]
 
     position, velocity = rng.normal(0, 10, (4, 3)), rng.normal(0, 1, (4, 3))
     for samples in (2, 3, 7):
@@ -49,11 +55,12 @@ def test_the_frame_model_is_what_the_tone_front_end_measures_with_reflections(rn
         result = frontend.estimate(frontend.envelopes(channel, waveform, 10_000.0, 0.02), waveform, C, 45.0 / C)
         measured = np.array([result.range_difference, result.range_rate_difference])
         wavenumber = 2 * np.pi * waveform.frequency / C
-        phasor = partial(multipath_measurement, "phasor", Propagation(60.0, -0.9, 0.3, wavenumber))
+        propagation = Propagation(60.0, -0.9, 0.3, wavenumber)
         state = (source, source_velocity, mobile, mobile_velocity, FIXED)
+        rd = partial(phasor_range_difference, propagation)
         for model, misses in (
-            (phasor(*state), centre_misses),
-            (frame_averaged(phasor, frame_offsets(0.2, 5), wavenumber, *state), frame_misses),
+            (multipath_measurement("phasor", propagation, *state), centre_misses),
+            (frame_averaged(rd, frame_offsets(0.2, 5), wavenumber, *state), frame_misses),
         ):
             miss = measured - model
             miss[0] = geometry.wrap_to_period(miss[0], C / waveform.frequency)

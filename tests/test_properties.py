@@ -15,6 +15,7 @@ from aasl_gym.measurement_models import (
     frame_averaged,
     frame_offsets,
     multipath_measurement,
+    phasor_range_difference,
     receiver_jacobian,
 )
 
@@ -143,7 +144,7 @@ def test_without_images_every_model_is_the_direct_path(source, velocity, mobile,
             multipath_measurement(model, silent, source, velocity, mobile, mobile_velocity, FIXED), direct, atol=1e-9
         )
     averaged = frame_averaged(
-        partial(multipath_measurement, "phasor", silent),
+        partial(phasor_range_difference, silent),
         frame_offsets(0.2, 3),
         PROPAGATION.wavenumber,
         source,
@@ -154,3 +155,11 @@ def test_without_images_every_model_is_the_direct_path(source, velocity, mobile,
     )
     # Over +-0.1 s the direct RD curves by at most (relative speed)^2 t^2 / range: millimetres.
     np.testing.assert_allclose(averaged, direct, atol=2e-2)
+
+
+@given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
+def test_the_rd_alone_is_the_phasor_models_rd_to_the_last_bit(source, velocity, mobile, mobile_velocity):
+    """The frame model's RD-only phasor evaluation is the full model's RD exactly (the rates left out)."""
+    assume(apart(source, mobile, FIXED))
+    full = PHASOR(source, velocity, mobile, mobile_velocity, FIXED)[0]
+    assert phasor_range_difference(PROPAGATION, source, mobile, FIXED) == full
