@@ -98,7 +98,7 @@ logger = logging.getLogger(__name__)
 EXTRA_STATE_SD = {"cv": 0.0, "ca": 0.02, "ctrv": 0.1}  # initial sd of acceleration (m/s^2) / turn rate (rad/s)
 RIPPLE_SAMPLES = 120  # a fine (phasor) window fit uses at most this many samples, evenly spaced
 RIPPLE_FITS = 4  # window fits that go on to the phasor model's ripple (the best of the coarse fits)
-RIPPLE_NIS_CAP = 20.0  # largest NIS one frame adds to the divergence test's mean under the phasor model
+RIPPLE_NIS_CAP = 2.5  # x filter.divergence_nis: the most one frame adds to that test's mean under the phasor model
 RIPPLE_GATE = 3.0  # robust cost per residual a fine window fit may have (at the truth ~1.5, in a wrong dip ~9)
 
 
@@ -360,6 +360,9 @@ class SourceTracker:
         direct path, the filter resolves the ripple. (In the free field the fresh one may win: the
         window fit uses all of its samples, the filter forgets through its process noise; keeping the
         filter there delayed convergence of CV sources by 36 s on average, 30 tuning seeds.)
+        Under the phasor model a running filter that resolved the ripple always competes and is refitted
+        with the phasor model as it is (:meth:`_fit_window`); the bank keeps at most
+        ``initializer.hypotheses`` of the fits.
         The running filters' covariances are multiplied by ``inflation`` (a re-seed because they turned
         inconsistent lets them re-adapt).
         """
@@ -391,7 +394,7 @@ class SourceTracker:
         kept += [i for i in resolved_running if i not in kept]
         resolved = [j for j, i in enumerate(kept) if i in resolved_running]
         fits = self._fit_window(len(burst.times), states[kept], resolved)
-        self._bank_from_fits(fits, time)
+        self._bank_from_fits(fits[:limit], time)
         return kept[fits[0][0]] >= len(running)
 
     @property
@@ -542,7 +545,7 @@ class SourceTracker:
         nis = np.asarray(hypothesis.nis)
         if self.ripple:
             # A frame at an interference null can miss by many sd: one such frame must not decide.
-            nis = np.minimum(nis, RIPPLE_NIS_CAP)
+            nis = np.minimum(nis, RIPPLE_NIS_CAP * self.config.filter.divergence_nis)
         return float(np.mean(nis)) > self.config.filter.divergence_nis
 
     def _assimilate(

@@ -99,6 +99,8 @@ def frame_averaged(
     centre's RD and instantaneous RRD then differ from the frame's mean and slope by many sd.
     """
     offsets = np.asarray(offsets, dtype=float)
+    if len(offsets) < 2 or abs(offsets.mean()) > 1e-9 * np.ptp(offsets):
+        raise ValueError(f"frame offsets must be two or more times about the frame's centre, got {offsets}")
     velocity, mobile_velocity = np.asarray(velocity, dtype=float), np.asarray(mobile_velocity, dtype=float)
     along = offsets[:, None]
     rd = range_difference_function(
@@ -108,7 +110,7 @@ def frame_averaged(
     )
     rd = np.unwrap(rd * wavenumber, axis=-1) / wavenumber
     mean = rd.mean(axis=-1)
-    slope = (rd - mean[..., None]) @ offsets / (offsets @ offsets) if len(offsets) > 1 else np.zeros_like(mean)
+    slope = (rd - mean[..., None]) @ offsets / (offsets @ offsets)
     return np.stack([mean, slope], axis=-1)
 
 
@@ -126,6 +128,7 @@ def frame_offsets(duration: float, samples: int) -> np.ndarray:
 
 
 RECEIVER_STEP = 1e-3  # m: central-difference step of the receiver Jacobian (a wavelength is 1.5 m)
+RECEIVER_RATE_STEP = 1e-3  # m/s: its step in the receiver's velocity (a frame moves it by 0.1 mm)
 
 
 def direct_receiver_jacobian(position, velocity, mobile, mobile_velocity) -> np.ndarray:
@@ -143,12 +146,13 @@ def direct_receiver_jacobian(position, velocity, mobile, mobile_velocity) -> np.
 
 def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
     """d[RD, RRD] / d[p_m, v_m] of a measurement model, shape ``(..., 2, 6)``: the closed form for the
-    direct path, else central differences in the mobile hydrophone's position; the model is linear in
-    its velocity (a range rate is), so a one-sided difference there is exact. ``measurement_function``
-    is (p, v, p_m, v_m, p_f) -> (..., 2).
+    direct path, else central differences in the mobile hydrophone's position (``RECEIVER_STEP``) and
+    velocity (``RECEIVER_RATE_STEP``). ``measurement_function`` is (p, v, p_m, v_m, p_f) -> (..., 2).
 
     Under multipath the apparent RD moves with the receiver's position far faster than the direct
-    path's -u_m near an interference null, which is why R_eff needs the model's own H_r.
+    path's -u_m near an interference null, which is why R_eff needs the model's own H_r. A frame's
+    model is not linear in the receiver's velocity (it moves the receiver across the frame), so the
+    velocity is differenced too, with a small step.
     """
     if measurement_function is direct_measurement:
         return direct_receiver_jacobian(position, velocity, mobile, mobile_velocity)
@@ -156,9 +160,10 @@ def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_v
     batch = np.broadcast_shapes(
         position.shape[:-1], velocity.shape[:-1], np.shape(mobile)[:-1], np.shape(mobile_velocity)[:-1]
     )
-    # Rows 0-5 move p_m by +-step along each axis, row 6 is the point itself, rows 7-9 add 1 m/s to v_m.
-    offsets, rate_offsets = np.zeros((10, 3)), np.zeros((10, 3))
-    offsets[0:3], offsets[3:6], rate_offsets[7:10] = RECEIVER_STEP * np.eye(3), -RECEIVER_STEP * np.eye(3), np.eye(3)
+    # Rows 0-5 move p_m by +-step along each axis, rows 6-11 move v_m by +-step.
+    offsets, rate_offsets = np.zeros((12, 3)), np.zeros((12, 3))
+    offsets[0:3], offsets[3:6] = RECEIVER_STEP * np.eye(3), -RECEIVER_STEP * np.eye(3)
+    rate_offsets[6:9], rate_offsets[9:12] = RECEIVER_RATE_STEP * np.eye(3), -RECEIVER_RATE_STEP * np.eye(3)
     expand = (slice(None),) * len(batch) + (None,)
     z = measurement_function(
         np.broadcast_to(position, batch + (3,))[expand],
@@ -166,10 +171,10 @@ def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_v
         np.broadcast_to(mobile, batch + (3,))[expand] + offsets,
         np.broadcast_to(mobile_velocity, batch + (3,))[expand] + rate_offsets,
         fixed,
-    )  # (..., 10, 2)
+    )  # (..., 12, 2)
     jacobian = np.empty(batch + (2, 6))
     jacobian[..., :3] = np.swapaxes(z[..., 0:3, :] - z[..., 3:6, :], -1, -2) / (2 * RECEIVER_STEP)
-    jacobian[..., 3:] = np.swapaxes(z[..., 7:10, :] - z[..., 6:7, :], -1, -2)
+    jacobian[..., 3:] = np.swapaxes(z[..., 6:9, :] - z[..., 9:12, :], -1, -2) / (2 * RECEIVER_RATE_STEP)
     return jacobian
 
 
@@ -186,7 +191,8 @@ def multipath_spread(
     """diag of the phasor model's multipath correction's variance (RD m^2, RRD m^2/s^2) over the
     surveillance volume: sources uniform in the ``sources`` box, receivers in ``receivers`` (motion Boxes),
     random velocities up to the given speeds. The RD correction is taken modulo the wavelength about
-    its circular mean. What a filter that cannot yet resolve the ripple must treat as noise.
+    its circular mean. What a filter that cannot yet resolve the ripple must treat as noise (of the
+    instantaneous model; signal mode's filter averages that model over the frame).
 
     Deterministic (a fixed-seed sample): a property of the world, not of an episode.
     """

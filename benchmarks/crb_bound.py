@@ -13,6 +13,8 @@ reflections the exact phasor model (the apparent RD and RRD of the tone's multip
 R_eff = R_ac + H_r Sigma_r H_r^T, H_r that model's receiver Jacobian at the truth (near an interference
 null the apparent RD moves with the receiver far faster than the direct path's), and in signal mode R_ac
 the front end's Cramer-Rao covariance at the SNR each hydrophone receives through the multipath sum.
+The phasor model is evaluated at each frame's centre, not averaged over the frame as the tracker's
+signal-mode model is.
 The default ``direct`` is the direct-path model with the tracker's fixed R (the free field's bound).
 
 Reported per motion: the share of episodes whose bound on the position error sd falls below

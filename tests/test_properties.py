@@ -163,3 +163,24 @@ def test_the_rd_alone_is_the_phasor_models_rd_to_the_last_bit(source, velocity, 
     assume(apart(source, mobile, FIXED))
     full = PHASOR(source, velocity, mobile, mobile_velocity, FIXED)[0]
     assert phasor_range_difference(PROPAGATION, source, mobile, FIXED) == full
+
+
+@given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
+def test_the_frame_models_receiver_jacobian_matches_fine_central_differences(source, velocity, mobile, mobile_velocity):
+    """A frame's model is not linear in the receiver's velocity (it carries the receiver across the
+    frame): its receiver Jacobian must still match central differences with a finer step."""
+    assume(apart(source, mobile, FIXED, distance=2.0))
+    frame = partial(
+        frame_averaged, partial(phasor_range_difference, PROPAGATION), frame_offsets(0.2, 3), PROPAGATION.wavenumber
+    )
+    jacobian = receiver_jacobian(frame, source, velocity, mobile, mobile_velocity, FIXED)
+    step = 1e-5
+    for i in range(3):
+        offset = np.zeros(3)
+        offset[i] = step
+        plus = frame(source, velocity, mobile, mobile_velocity + offset, FIXED)
+        minus = frame(source, velocity, mobile, mobile_velocity - offset, FIXED)
+        difference = plus - minus
+        difference[0] = geometry.wrap_to_period(difference[0], 1.5)
+        assume(np.all(np.abs(difference) < 1.0))  # not across a branch of the wrapped phase
+        np.testing.assert_allclose(jacobian[:, 3 + i], difference / (2 * step), atol=1e-3, rtol=1e-2)
