@@ -89,6 +89,7 @@ from aasl_gym.measurement_models import (
     phasor_range_difference,
     receiver_jacobian,
     receiver_noise,
+    tone_period,
 )
 from aasl_gym.motion import Box, receiver_region
 from aasl_gym.window import fit_window, subsample, whitened_residuals
@@ -151,7 +152,7 @@ class SourceTracker:
         # LC-MAP fits the filter's motion model: straight lines, turns or a constant acceleration.
         self.initializer = make_initializer(config.initializer.name, config.initializer, region, self.model.name)
         self.reinitializer = LCMAPInitializer(config.initializer, region, self.model.name)
-        self.wavelength = config.wavelength if config.source.waveform == "tone" else None
+        self.wavelength = tone_period(config)
         # The filter's measurement model (p, v, p_m, v_m, p_f) -> [RD, RRD], and the one windows (LC-MAP,
         # re-seeding) are weighed with: the direct path where the filter's model has a ripple (their
         # burst R then carries the ripple as noise, ``multipath_noise``). The direct path is the function

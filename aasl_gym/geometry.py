@@ -137,34 +137,48 @@ def _multipath_phase(
     S = sum_k a_k / r_k exp(-j k r_k) over the direct path (a = 1) and the images, so
     M = 1 + sum_images a_i (d / r_i) exp(-j k (r_i - d)).
     """
-    direct, unit, terms = _image_terms(source, receiver, images, gains, wavenumber)
+    factor, direct, unit, terms = _multipath_factor(source, receiver, images, gains, wavenumber)
     direct_rate = range_rate(unit, source_velocity, receiver_velocity)
-    factor = np.ones(np.shape(direct), dtype=complex)
     factor_rate = np.zeros(np.shape(direct), dtype=complex)
     for (term, image_range, image_unit), (_, image_velocity) in zip(terms, images):
         image_rate = range_rate(image_unit, image_velocity, receiver_velocity)
-        factor = factor + term
         log_rate = direct_rate / direct - image_rate / image_range - 1j * wavenumber * (image_rate - direct_rate)
         factor_rate = factor_rate + term * log_rate
     return np.angle(factor), np.imag(factor_rate / factor), direct, direct_rate
 
 
-def _image_terms(
+def _multipath_factor(
     source: np.ndarray,
     receiver: np.ndarray,
     images: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
     gains: tuple[float, float],
     wavenumber: float,
-) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """The direct path's range (m) and unit vector at ``receiver``, and each image's term of the
-    multipath factor, a_i (d / r_i) exp(-j k (r_i - d)), with its range r_i (m) and unit vector."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """The multipath factor M = 1 + sum_images a_i (d / r_i) exp(-j k (r_i - d)) at ``receiver``, the
+    direct path's range d (m) and unit vector, and each image's term with its range r_i (m) and unit vector."""
     direct, unit = ranges(source, receiver)
+    factor = np.ones(np.shape(direct), dtype=complex)
     terms = []
     for (image, _), gain in zip(images, gains):
         image_range, image_unit = ranges(image, receiver)
         term = gain * direct / image_range * np.exp(-1j * wavenumber * (image_range - direct))
+        factor = factor + term
         terms.append((term, image_range, image_unit))
-    return direct, unit, terms
+    return factor, direct, unit, terms
+
+
+def multipath_factor(
+    source: np.ndarray,
+    receiver: np.ndarray,
+    water_depth: float,
+    surface_reflection: float,
+    bed_reflection: float,
+    wavenumber: float,
+) -> np.ndarray:
+    """M = S / S_direct (complex) at ``receiver``: the tone through the surface and bed images relative to
+    the direct path alone (|M| scales the received amplitude, its phase the apparent range)."""
+    images = image_sources(source, np.zeros_like(source), water_depth)
+    return _multipath_factor(source, receiver, images, (surface_reflection, bed_reflection), wavenumber)[0]
 
 
 def phasor_range_difference(
@@ -180,15 +194,9 @@ def phasor_range_difference(
     frame's RD track is made of (its slope is the frame's RRD), at about two thirds of the cost."""
     gains = (surface_reflection, bed_reflection)
     images = image_sources(source, np.zeros_like(source), water_depth)
-    phases, direct_ranges = [], []
-    for receiver in (mobile, fixed):
-        direct, _, terms = _image_terms(source, receiver, images, gains, wavenumber)
-        factor = np.ones(np.shape(direct), dtype=complex)
-        for term, _, _ in terms:
-            factor = factor + term
-        phases.append(np.angle(factor))
-        direct_ranges.append(direct)
-    return (direct_ranges[0] - direct_ranges[1]) + (phases[1] - phases[0]) / wavenumber
+    factor_m, range_m, _, _ = _multipath_factor(source, mobile, images, gains, wavenumber)
+    factor_f, range_f, _, _ = _multipath_factor(source, fixed, images, gains, wavenumber)
+    return (range_m - range_f) + (np.angle(factor_f) - np.angle(factor_m)) / wavenumber
 
 
 def phasor_multipath(

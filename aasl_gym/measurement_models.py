@@ -39,6 +39,11 @@ class Propagation:
         )
 
 
+def tone_period(config: EnvConfig) -> float | None:
+    """m, the period a tone's RD is known modulo (one wavelength); None for a sweep or hop (unambiguous)."""
+    return config.wavelength if config.source.waveform == "tone" else None
+
+
 def direct_measurement(position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
     """Noise-free direct-path [RD, RRD], shape ``(..., 2)``."""
     # The geometry's RD and RRD, sharing the two ranges and unit vectors (this runs once per sigma point).

@@ -17,7 +17,7 @@ import numpy as np
 
 from aasl_gym.config import EnvConfig
 from aasl_gym.frontend import FrontEnd, Unwrapper
-from aasl_gym.measurement_models import Propagation, model_snr, multipath_measurement, signal_noise_sd
+from aasl_gym.measurement_models import Propagation, model_snr, multipath_measurement, signal_noise_sd, tone_period
 from aasl_gym.synthesis import FrameFault
 
 
@@ -49,11 +49,6 @@ class Sensor(Protocol):
 
     def snr(self) -> np.ndarray:
         """In-band SNR (linear) of the latest frame at the (mobile, fixed) hydrophones; NaN where unknown."""
-
-
-def tone_period(config: EnvConfig) -> float | None:
-    """m, the period a tone's RD is known modulo (one wavelength); None for a sweep or hop (unambiguous)."""
-    return config.wavelength if config.source.waveform == "tone" else None
 
 
 class GeometricSensor:

@@ -62,18 +62,6 @@ def _simulate(env: AASLEnv, state: SourceState, steps: int) -> np.ndarray:
     return positions
 
 
-def multipath_gain(propagation: Propagation, source: np.ndarray, receiver: np.ndarray) -> np.ndarray:
-    """|M|, the tone's amplitude through the surface and bed images relative to the direct path's, at
-    ``receiver`` (m; broadcasts): M = 1 + sum_i a_i (d / r_i) exp(-j k (r_i - d))."""
-    direct = np.linalg.norm(source - receiver, axis=-1)
-    factor = np.ones(direct.shape, dtype=complex)
-    images = geometry.image_sources(source, np.zeros_like(source), propagation.water_depth)
-    for (image, _), gain in zip(images, (propagation.surface_reflection, propagation.bed_reflection)):
-        image_range = np.linalg.norm(image - receiver, axis=-1)
-        factor += gain * direct / image_range * np.exp(-1j * propagation.wavenumber * (image_range - direct))
-    return np.abs(factor)
-
-
 def matched_weights(
     config: EnvConfig,
     propagation: Propagation,
@@ -89,8 +77,12 @@ def matched_weights(
         return multipath_measurement(model, propagation, p, v, p_m, v_m, p_f)
 
     if config.measurement.mode == "signal":
+        channel = (propagation.water_depth, propagation.surface_reflection, propagation.bed_reflection)
         gains = [
-            multipath_gain(propagation, truth[:, :3], r) if config.world.reflections else 1.0 for r in (mobile, fixed)
+            np.abs(geometry.multipath_factor(truth[:, :3], r, *channel, propagation.wavenumber))
+            if config.world.reflections
+            else 1.0
+            for r in (mobile, fixed)
         ]
         snr = [model_snr(config, truth[:, :3], r) * g**2 for r, g in zip((mobile, fixed), gains)]
         sd = signal_noise_sd(config, snr[0], snr[1])
