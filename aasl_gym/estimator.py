@@ -78,21 +78,27 @@ from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
 from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_weights
 from aasl_gym.fisher import information_prior
-from aasl_gym.initializers import Burst, LCMAPInitializer, distinct_hypotheses, make_initializer, robust_loss
+from aasl_gym.initializers import (
+    Burst,
+    LCMAPInitializer,
+    distinct_hypotheses,
+    make_initializer,
+    robust_loss,
+    subsample,
+)
 from aasl_gym.measurement_models import (
+    FrameAveragedPhasor,
     Propagation,
     direct_measurement,
-    frame_averaged,
     frame_offsets,
     multipath_measurement,
     multipath_spread,
-    phasor_range_difference,
     receiver_jacobian,
     receiver_noise,
     tone_period,
 )
 from aasl_gym.motion import Box, receiver_region
-from aasl_gym.window import fit_window, subsample, whitened_residuals
+from aasl_gym.window import fit_window, whitened_residuals
 
 logger = logging.getLogger(__name__)
 
@@ -164,8 +170,7 @@ class SourceTracker:
             # The front end's RD and RRD are a frame's mean and slope: at an interference null the phasor
             # model's centre value misses them by many sd (tuning seeds 0-2: 12 % of RD frames beyond 3 sd).
             offsets = frame_offsets(config.signal.frame_duration, f.frame_samples)
-            range_difference = partial(phasor_range_difference, self.propagation)
-            self.measurement_function = partial(frame_averaged, range_difference, offsets, self.propagation.wavenumber)
+            self.measurement_function = FrameAveragedPhasor(self.propagation, offsets)
         self.window_function = direct_measurement if self.ripple else self.measurement_function
         self.sigma_spread = merwe_weights(self.model.dim, f.alpha, f.beta, f.kappa)[2]
         # What the phasor model's correction adds when unresolved: LC-MAP and the re-seed windows weigh

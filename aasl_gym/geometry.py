@@ -199,6 +199,46 @@ def phasor_range_difference(
     return (range_m - range_f) + (np.angle(factor_f) - np.angle(factor_m)) / wavenumber
 
 
+def phasor_range_difference_gradients(
+    source: np.ndarray,
+    mobile: np.ndarray,
+    fixed: np.ndarray,
+    water_depth: float,
+    surface_reflection: float,
+    bed_reflection: float,
+    wavenumber: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients (..., 3) of :func:`phasor_range_difference` with respect to the source position and the
+    mobile hydrophone's position (dimensionless), in closed form.
+
+    RD_app = (d_m - d_f) + (phi_f - phi_m) / k with phi the phase of a receiver's multipath factor
+    M = 1 + sum_i T_i, T_i = a_i (d / r_i) exp(-j k (r_i - d)). A small move changes log T_i by
+    dd / d - dr_i / r_i - j k (dr_i - dd), so dphi = Im(sum_i (T_i / M) dlog T_i). With respect to the
+    source dd = u . dp and dr_i = (S u_i) . dp (S the image's mirror, diag(1, 1, -1)); with respect to
+    the receiver dd = -u . dr and dr_i = -u_i . dr (u, u_i the unit vectors from the receiver).
+    """
+    gains = (surface_reflection, bed_reflection)
+    images = image_sources(source, np.zeros_like(source), water_depth)
+    mirror = np.array([1.0, 1.0, -1.0])
+    gradients = []
+    for receiver in (mobile, fixed):
+        factor, direct, unit, terms = _multipath_factor(source, receiver, images, gains, wavenumber)
+        phase_source = np.zeros(np.shape(unit))
+        phase_receiver = np.zeros(np.shape(unit))
+        for term, image_range, image_unit in terms:
+            weight = term / factor
+            sine, cosine = weight.imag[..., None], weight.real[..., None]
+            along_direct, along_image = unit / direct[..., None], image_unit / image_range[..., None]
+            mirrored, mirrored_along = mirror * image_unit, mirror * along_image
+            phase_source += sine * (along_direct - mirrored_along) - wavenumber * cosine * (mirrored - unit)
+            phase_receiver += sine * (along_image - along_direct) - wavenumber * cosine * (unit - image_unit)
+        gradients.append((unit, phase_source, phase_receiver))
+    (unit_m, source_m, receiver_m), (unit_f, source_f, _) = gradients
+    source_gradient = (unit_m - unit_f) + (source_f - source_m) / wavenumber
+    mobile_gradient = -unit_m - receiver_m / wavenumber
+    return source_gradient, mobile_gradient
+
+
 def phasor_multipath(
     source: np.ndarray,
     source_velocity: np.ndarray,

@@ -15,11 +15,11 @@ Fisher information at the candidate (with lambda = 1 this is the MAP under a Jef
 Implausible candidates (outside the water column or the surveillance region, too fast) are dropped.
 The grid stage scores on at most ``grid_samples`` of the burst (a long window at 1 Hz is plenty to
 find basins); the best grid candidates (overall and on every sheet) are then refined by Gauss-Newton
-on (p, v) over the whole burst and scored again. A 2 s burst rarely tells the sheets apart, so LC-MAP
-returns up to ``config.hypotheses`` distinct candidates - the best of every sheet first, then the next
-best - each with the inverse of its F (times ``covariance_inflation``) as covariance and its burst
-likelihood exp(-J / 2) as relative weight; the tracker runs one UKF per hypothesis
-(``hypotheses: 1`` is the paper's single filter).
+on (p, v) over at most ``refine_samples`` of it and scored again on the whole burst. A 2 s burst rarely
+tells the sheets apart, so LC-MAP returns up to ``config.hypotheses`` distinct candidates - the best of
+every sheet first, then the next best - each with the inverse of its F (times ``covariance_inflation``)
+as covariance and its burst likelihood exp(-J / 2) as relative weight; the tracker runs one UKF per
+hypothesis (``hypotheses: 1`` is the paper's single filter).
 
 LC-MAP fits the trajectory the filter's motion model allows. With ``cv`` (the default) it is a
 straight line. With ``ctrv`` every candidate position is tried at each turn rate of a small grid
@@ -264,6 +264,21 @@ class TdoaLeastSquaresInitializer(_BroadPrior):
         return self.estimate(burst, position, 0.0, _uninformed_bias_sd(burst))
 
 
+def subsample(burst: Burst, samples: int) -> Burst:
+    """At most ``samples`` of the burst, evenly spaced and ending on its last sample (where the states are)."""
+    count = len(burst.times)
+    if count <= samples:
+        return burst
+    index = np.round(np.linspace(count - 1, 0, samples))[::-1].astype(int)
+    return replace(
+        burst,
+        **{
+            name: getattr(burst, name)[index]
+            for name in ("times", "measurements", "receiver_positions", "receiver_velocities")
+        },
+    )
+
+
 def periodic_residual(residual: np.ndarray, burst: Burst) -> np.ndarray:
     """RD residuals (..., 2) modulo the burst's ``residual_period``, if it has one (in place)."""
     if burst.residual_period is not None:
@@ -400,7 +415,8 @@ class LCMAPInitializer:
     refine_best = 16  # grid candidates refined overall
     refine_per_sheet = 3  # and on every whole-period sheet
     separation = 2.0  # m: closer candidates on one sheet are one hypothesis
-    grid_samples = 20  # burst samples the grid stage uses at most (the refinement uses all)
+    grid_samples = 20  # burst samples the grid stage uses at most
+    refine_samples = 100  # and the refinement (a window fit follows a re-seed's; 20 s at 5 Hz find a basin's bottom)
 
     def __init__(self, config: InitializerConfig, region: Box, motion: str = "cv"):
         """``motion``: the filter's motion model, which the fit follows - ``cv`` straight lines,
@@ -450,19 +466,45 @@ class LCMAPInitializer:
         return motion.chain(local, with_acceleration, overwrite=True)
 
     def _solve_velocities(
-        self, burst: Burst, positions: np.ndarray, biases: np.ndarray, motion: CandidateMotion
+        self, burst: Burst, positions: np.ndarray, biases: np.ndarray, motion: CandidateMotion, copies: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
-        """MAP velocities for fixed positions, and the Jacobians (C, K, 2, 6) of the last linearization."""
+        """MAP velocities for fixed positions, and the Jacobians (C, K, 2, 6) of the last linearization.
+
+        ``positions`` and ``biases`` may be ``copies`` copies of one set, one per turn rate of the grid:
+        the solve starts from rest, where every copy's trajectory is the same fixed point, so the first
+        linearization is made once for all of them (a turning grid's most costly step)."""
         prior = np.eye(3) / self.config.velocity_prior_sd**2
         velocities = np.zeros_like(positions)
-        for _ in range(self.velocity_iterations):
-            _, residual, white = _burst_chi_square(burst, positions, velocities, biases, motion)
-            jac = self._jacobians(burst, positions, velocities, motion)
+        for iteration in range(self.velocity_iterations):
+            if iteration == 0 and copies > 1:
+                residual, white, jac = self._linearize_at_rest(burst, positions, biases, motion, copies)
+            else:
+                _, residual, white = _burst_chi_square(burst, positions, velocities, biases, motion)
+                jac = self._jacobians(burst, positions, velocities, motion)
             normal, gradient = _normal_equations(jac[..., 3:6], residual, white)
             normal = normal + prior
             gradient = gradient - velocities @ prior
             velocities = velocities + np.linalg.solve(normal, gradient[..., None])[..., 0]
         return velocities, jac
+
+    def _linearize_at_rest(self, burst: Burst, positions, biases, motion: CandidateMotion, copies: int):
+        """The whitened residuals, whitener and Jacobians of :meth:`_solve_velocities`' first step
+        (zero velocities) for ``copies`` copies of one set of positions, computed on one copy."""
+        distinct = len(positions) // copies
+        at_rest = CandidateMotion(motion.tau, np.zeros(distinct))
+        still, zero = positions[:distinct], np.zeros((distinct, 3))
+        _, residual, white = _burst_chi_square(burst, still, zero, biases[:distinct], at_rest)
+        trajectory, trajectory_velocity = at_rest.trajectory(still, zero)
+        local = geometry.direct_jacobian(
+            trajectory,
+            trajectory_velocity,
+            burst.receiver_positions[None],
+            burst.receiver_velocities[None],
+            burst.fixed_position,
+        )
+        if white.ndim > 2:  # a robust burst's weights are per residual
+            white = np.tile(white, (copies, 1, 1, 1))
+        return np.tile(residual, (copies, 1, 1)), white, motion.chain(np.tile(local, (copies, 1, 1, 1)), overwrite=True)
 
     def _score(
         self, burst: Burst, positions, velocities, biases, motion: CandidateMotion, jacobians=None, per_sample=False
@@ -489,8 +531,9 @@ class LCMAPInitializer:
         return CandidateMotion(tau, turn_rates, theta[:, 6:9] if self.fit_acceleration else None)
 
     def _refine(self, burst: Burst, positions, velocities, biases, turn_rates):
-        """Gauss-Newton jointly over the whole burst, from the best grid candidates, on (p, v) and the
-        motion's own parameter: the turn rate (its derivative by central differences) or the acceleration.
+        """Gauss-Newton jointly over the burst (the caller's subsample), from the best grid candidates,
+        on (p, v) and the motion's own parameter: the turn rate (its derivative by central differences)
+        or the acceleration.
 
         The grid spacing on the locus (and in turn rate) is coarse against a long burst's precision, so
         the grid only finds the basin; these steps find its bottom. Returns theta = [p, v, (omega | a)].
@@ -560,7 +603,8 @@ class LCMAPInitializer:
             },
         )
         grid_motion = CandidateMotion(grid_burst.times - grid_burst.times[0], turn_rates)
-        velocities, jacobians = self._solve_velocities(grid_burst, positions, biases, grid_motion)
+        copies = len(self.turn_rates)
+        velocities, jacobians = self._solve_velocities(grid_burst, positions, biases, grid_motion, copies)
         score, _, _ = self._score(grid_burst, positions, velocities, biases, grid_motion, jacobians)
         plausible = self._plausible(positions, velocities, CandidateMotion(tau_end, turn_rates))
         score = np.where(plausible, score, np.inf) if plausible.any() else score
@@ -569,7 +613,9 @@ class LCMAPInitializer:
         on_sheets = [order[biases[order] == bias][: self.refine_per_sheet] for bias in np.unique(biases)]
         chosen = np.unique(np.concatenate([order[: self.refine_best], *on_sheets]))
         biases, turn_rates = biases[chosen], turn_rates[chosen]
-        theta = self._refine(burst, positions[chosen], velocities[chosen], biases, turn_rates)
+        theta = self._refine(
+            subsample(burst, self.refine_samples), positions[chosen], velocities[chosen], biases, turn_rates
+        )
         refined_p, refined_v = theta[:, 0:3], theta[:, 3:6]
         motion = self._motion(burst.times - burst.times[0], theta, turn_rates)
         refined_score, chi_square, information = self._score(

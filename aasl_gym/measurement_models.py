@@ -14,6 +14,7 @@ the SNR model (:func:`model_snr`), the sd the filter is told at a frame's SNRs
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -132,6 +133,74 @@ def frame_offsets(duration: float, samples: int) -> np.ndarray:
     return ((np.arange(samples) + 0.5) / samples - 0.5) * duration
 
 
+@dataclass(frozen=True, eq=False)
+class FrameAveragedPhasor:
+    """The phasor model's [RD, RRD] over one frame as a tone front end measures them
+    (:func:`frame_averaged` of :func:`phasor_range_difference` at ``offsets``, s), with both of its
+    Jacobians in closed form. A measurement function: (p, v, p_m, v_m, p_f) -> (..., 2)."""
+
+    propagation: Propagation
+    offsets: np.ndarray
+
+    def __call__(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+        range_difference = partial(phasor_range_difference, self.propagation)
+        state = (position, velocity, mobile, mobile_velocity, fixed)
+        return frame_averaged(range_difference, self.offsets, self.propagation.wavenumber, *state)
+
+    def _gradients(self, position, velocity, mobile, mobile_velocity, fixed) -> tuple[np.ndarray, np.ndarray]:
+        """The instantaneous RD's gradients in the source's and the mobile's position at every frame
+        sample: (..., S, 3) each."""
+        along = self.offsets[:, None]
+
+        def at_samples(start, rate) -> np.ndarray:
+            return np.asarray(start, dtype=float)[..., None, :] + along * np.asarray(rate, dtype=float)[..., None, :]
+
+        p = self.propagation
+        return geometry.phasor_range_difference_gradients(
+            at_samples(position, velocity),
+            at_samples(mobile, mobile_velocity),
+            fixed,
+            p.water_depth,
+            p.surface_reflection,
+            p.bed_reflection,
+            p.wavenumber,
+        )
+
+    def state_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+        """d[RD, RRD] / d[p, v], shape (..., 2, 6)."""
+        return _frame_jacobian(self._gradients(position, velocity, mobile, mobile_velocity, fixed)[0], self.offsets)
+
+    def receiver_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+        """d[RD, RRD] / d[p_m, v_m], shape (..., 2, 6)."""
+        return _frame_jacobian(self._gradients(position, velocity, mobile, mobile_velocity, fixed)[1], self.offsets)
+
+
+def _frame_jacobian(gradients: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """d[mean, slope] / d[x, x'] (..., 2, 6) of a frame's RD track sampled at x + tau x' (tau the
+    ``offsets``, about the frame's centre), from the RD's gradients in x at the samples (..., S, 3). The
+    mean and the least-squares slope are linear in the samples; unwrapping adds constants only."""
+    mean_weights = np.full(len(offsets), 1 / len(offsets))
+    slope_weights = offsets / (offsets @ offsets)
+    rows = [
+        np.concatenate(
+            [np.einsum("s,...si->...i", weights, gradients), np.einsum("s,...si->...i", weights * offsets, gradients)],
+            axis=-1,
+        )
+        for weights in (mean_weights, slope_weights)
+    ]
+    return np.stack(rows, axis=-2)
+
+
+def state_jacobian_function(measurement_function):
+    """The closed-form d[RD, RRD] / d[p, v] of a measurement model, (p, v, p_m, v_m, p_f) -> (..., 2, 6),
+    or None where it has none (the state Jacobian is then taken by differences)."""
+    if measurement_function is direct_measurement:
+        return geometry.direct_jacobian
+    if isinstance(measurement_function, FrameAveragedPhasor):
+        return measurement_function.state_jacobian
+    return None
+
+
 RECEIVER_STEP = 1e-3  # m: central-difference step of the receiver Jacobian (a wavelength is 1.5 m)
 RECEIVER_RATE_STEP = 1e-3  # m/s: its step in the receiver's velocity (a frame moves it by 0.1 mm)
 
@@ -161,6 +230,8 @@ def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_v
     """
     if measurement_function is direct_measurement:
         return direct_receiver_jacobian(position, velocity, mobile, mobile_velocity)
+    if isinstance(measurement_function, FrameAveragedPhasor):
+        return measurement_function.receiver_jacobian(position, velocity, mobile, mobile_velocity, fixed)
     position, velocity = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
     batch = np.broadcast_shapes(
         position.shape[:-1], velocity.shape[:-1], np.shape(mobile)[:-1], np.shape(mobile_velocity)[:-1]
@@ -186,8 +257,14 @@ def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_v
 def receiver_noise(jacobian: np.ndarray, position_sd: float, velocity_sd: float) -> np.ndarray:
     """H_r Sigma_r H_r^T (..., 2, 2): what white navigation errors of sd ``position_sd`` (m, per axis) and
     ``velocity_sd`` (m/s) in the reported receiver state add to the measurement covariance."""
-    position, rate = jacobian[..., :3], jacobian[..., 3:]
-    return position_sd**2 * position @ np.swapaxes(position, -1, -2) + velocity_sd**2 * rate @ np.swapaxes(rate, -1, -2)
+    # Three dot products of the scaled rows: a batched (2, 6) @ (6, 2) product costs four times as much.
+    scaled = jacobian * np.repeat([position_sd, velocity_sd], 3)
+    rd_row, rrd_row = scaled[..., 0, :], scaled[..., 1, :]
+    noise = np.empty(jacobian.shape[:-2] + (2, 2))
+    noise[..., 0, 0] = np.einsum("...i,...i->...", rd_row, rd_row)
+    noise[..., 1, 1] = np.einsum("...i,...i->...", rrd_row, rrd_row)
+    noise[..., 0, 1] = noise[..., 1, 0] = np.einsum("...i,...i->...", rd_row, rrd_row)
+    return noise
 
 
 def multipath_spread(

@@ -10,6 +10,7 @@ from aasl_gym.config import InitializerConfig
 from aasl_gym.initializers import (
     Burst,
     CandidateMotion,
+    LCMAPInitializer,
     _predicted,
     feasible_offsets,
     fibonacci_directions,
@@ -162,7 +163,6 @@ def test_turn_terms_chain_rule_matches_finite_differences(rate):
     tau = burst.times - burst.times[0]
     turns = CandidateMotion(tau, np.array([rate]))
     theta = np.array([7.0, -5, -11, 0.6, 0.4, -0.05])
-    from aasl_gym.initializers import LCMAPInitializer
 
     analytic = LCMAPInitializer._jacobians(burst, theta[None, :3], theta[None, 3:], turns)[0]
     numeric = np.zeros_like(analytic)
@@ -213,6 +213,28 @@ def test_lcmap_with_a_turn_grid_recovers_a_turning_source(rng):
     assert turning.turn_rates[0] == pytest.approx(0.07, abs=0.01)
     straight = make_initializer("lcmap", config, REGION)(burst, rng)
     assert np.linalg.norm(straight.state[:3] - truth_p[-1]) > 2.0
+
+
+@pytest.mark.parametrize("robust", [False, True])
+def test_a_turn_grid_shares_its_first_linearization_without_changing_the_fit(robust, rng, monkeypatch):
+    """The turn grid's velocity solve linearizes its copies (one per turn rate) at rest once: the
+    hypotheses are those of linearizing every copy on its own, to the last bit (robust bursts, whose
+    whiteners carry per-residual weights, too)."""
+    times = np.arange(0, 20.0, 0.2)
+    angle = times / 15.0
+    mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), -7 - 5 * np.sin(2 * np.pi * times / 30)], -1)
+    mobile_velocity = np.gradient(mobile, times, axis=0)
+    truth_p, truth_v = turning_truth(np.array([9.0, -6, -10]), np.array([0.7, 0.3, 0.0]), 0.05, times)
+    z = direct_measurement(truth_p, truth_v, mobile, mobile_velocity, FIXED) + rng.normal(0, [0.05, 0.02], (100, 2))
+    noise = np.diag([0.05**2, 0.02**2])
+    burst = Burst(times, z, mobile, mobile_velocity, FIXED, noise, 1.5, direct_measurement, robust=robust)
+    initializer = make_initializer("lcmap", InitializerConfig(), REGION, "ctrv")
+    shared = initializer(burst, np.random.default_rng(0))
+    solve = LCMAPInitializer._solve_velocities
+    monkeypatch.setattr(LCMAPInitializer, "_solve_velocities", lambda self, *args: solve(self, *args[:4], copies=1))
+    separate = initializer(burst, np.random.default_rng(0))
+    np.testing.assert_array_equal(shared.states, separate.states)
+    np.testing.assert_array_equal(shared.covariances, separate.covariances)
 
 
 def test_lcmap_with_a_ca_filter_fits_the_acceleration(rng):

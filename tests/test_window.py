@@ -6,9 +6,15 @@ import pytest
 
 from aasl_gym.config import FilterConfig
 from aasl_gym.filters import make_motion_model
-from aasl_gym.initializers import Burst
-from aasl_gym.measurement_models import direct_measurement
-from aasl_gym.window import fit_window, subsample
+from aasl_gym.initializers import Burst, subsample
+from aasl_gym.measurement_models import (
+    FrameAveragedPhasor,
+    Propagation,
+    direct_measurement,
+    frame_offsets,
+    state_jacobian_function,
+)
+from aasl_gym.window import _chained_jacobian, _difference_jacobian, _jacobian, _trajectory, _whiteners, fit_window
 
 FIXED = np.array([0.0, 0.0, -0.96])
 TIMES = np.arange(0.0, 30.0, 0.2)
@@ -107,3 +113,39 @@ def test_the_covariance_matches_the_spread_of_fits_to_noisy_windows():
     spread, predicted = np.cov(np.array(errors).T), np.mean(covariances, axis=0)
     ratio = np.trace(spread) / np.trace(predicted)
     assert 0.6 < ratio < 1.6, ratio
+
+
+FRAME = FrameAveragedPhasor(Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5), frame_offsets(0.2, 3))
+
+
+@pytest.mark.parametrize("motion_model", ["cv", "ctrv", "ca"])
+@pytest.mark.parametrize("measurement", [direct_measurement, FRAME], ids=["direct", "frame"])
+def test_the_chained_jacobian_is_the_difference_jacobian(motion_model, measurement, monkeypatch):
+    """The window's Jacobian chained from a model's closed form (what the fits use for the direct path
+    and the frame model) against central differences of the whole prediction, on starts off the truth,
+    with each start's own R_eff whitener (navigation sd 5 cm, 2 cm/s)."""
+    burst, model = window(motion_model, TRUTHS[motion_model])
+    burst = Burst(
+        TIMES,
+        burst.measurements,
+        burst.receiver_positions,
+        burst.receiver_velocities,
+        FIXED,
+        NOISE,
+        1.5,
+        measurement,
+        navigation_sd=(0.05, 0.02),
+    )
+    rng = np.random.default_rng(1)
+    states = np.repeat(TRUTHS[motion_model][None], 3, axis=0)
+    states[:, 0:3] += rng.normal(0, 3.0, (3, 3))
+    white = _whiteners(burst, _trajectory(burst, model, states))
+    chained = _chained_jacobian(burst, model, states, white, state_jacobian_function(measurement))
+    assert np.array_equal(_jacobian(burst, model, states, white), chained)
+    # The reference takes a finer step than the fits' differences: near an interference null, and along
+    # an acceleration that moves a 30 s window's far end by 450 times its step, 0.1 mm carries the frame
+    # model's curvature (off by up to a quarter of a column there).
+    monkeypatch.setattr("aasl_gym.window.STEP", 1e-6)
+    differences = _difference_jacobian(burst, model, states, white)
+    scale = np.abs(differences).max(axis=1, keepdims=True)  # each column against its size
+    np.testing.assert_allclose(chained / scale, differences / scale, atol=1e-4)
