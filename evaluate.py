@@ -32,9 +32,10 @@ from aasl_gym.study.jobs import (
 from aasl_gym.study.log import EpisodeLog, LogMismatch
 from aasl_gym.study.plots import pop_trajectories, write_plots, write_trajectory_plots
 from aasl_gym.study.report import console_table, write_report, write_results
-from aasl_gym.study.runner import BACKENDS, Backend, MissingBackend, run_jobs, trained_model
+from aasl_gym.study.runner import BACKENDS, Backend, MissingBackend, run_jobs
 from aasl_gym.study.stats import study_comparisons, summarize
 from agents import POLICIES as SCRIPTED_POLICIES  # what agents.make_policy builds by name
+from agents.study import run_episode, trained_model
 
 ROOT = Path(__file__).resolve().parent
 
@@ -149,7 +150,7 @@ def run(args: argparse.Namespace, jobs: list[Job]) -> list[dict]:
     )
     backend = Backend(args.backend, args.workers, args.ray_address, code_root=ROOT)
     with tqdm(total=len(jobs), initial=reused, desc="episodes", unit="ep") as progress:
-        return run_jobs(jobs, done, log, backend, on_row=progress.update)
+        return run_jobs(jobs, run_episode, done, log, backend, on_row=progress.update)
 
 
 def write_outputs(

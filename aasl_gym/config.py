@@ -36,21 +36,24 @@ class ConfigError(ValueError):
     """A configuration value or key is not allowed; the message names it and what is allowed."""
 
 
-def _check(condition: bool, path: str, message: str) -> None:
+def require(condition: bool, path: str, message: str) -> None:
+    """Raise :class:`ConfigError` ``"{path}: {message}"`` unless ``condition``: every check of a config
+    (and of the training schedule, :mod:`agents.training`) names its key this way."""
     if not condition:
         raise ConfigError(f"{path}: {message}")
 
 
-def _choice(value: str, allowed: tuple[str, ...], path: str) -> None:
-    _check(value in allowed, path, f"{value!r} is not one of {list(allowed)}")
+def require_choice(value: str, allowed: tuple[str, ...], path: str) -> None:
+    """``value`` is one of ``allowed``, or a :class:`ConfigError` at ``path`` lists them."""
+    require(value in allowed, path, f"{value!r} is not one of {list(allowed)}")
 
 
 def _positive(value: float, path: str) -> None:
-    _check(math.isfinite(value) and value > 0, path, f"must be a finite number > 0, got {value!r}")
+    require(math.isfinite(value) and value > 0, path, f"must be a finite number > 0, got {value!r}")
 
 
 def _non_negative(value: float, path: str) -> None:
-    _check(math.isfinite(value) and value >= 0, path, f"must be a finite number >= 0, got {value!r}")
+    require(math.isfinite(value) and value >= 0, path, f"must be a finite number >= 0, got {value!r}")
 
 
 def _check_finite(section: Any, name: str) -> None:
@@ -61,13 +64,13 @@ def _check_finite(section: Any, name: str) -> None:
         values = value if isinstance(value, tuple) else (value,)
         for number in values:
             if isinstance(number, float):
-                _check(math.isfinite(number), f"{name}.{item.name}", f"must be finite, got {value!r}")
+                require(math.isfinite(number), f"{name}.{item.name}", f"must be finite, got {value!r}")
 
 
 def _ordered_pair(pair: tuple[float, float], path: str, minimum: float = 0.0) -> None:
-    _check(len(pair) == 2, path, f"must be [low, high], got {list(pair)}")
+    require(len(pair) == 2, path, f"must be [low, high], got {list(pair)}")
     low, high = pair
-    _check(
+    require(
         minimum <= low <= high and math.isfinite(high), path, f"must satisfy {minimum} <= low <= high, got {list(pair)}"
     )
 
@@ -89,19 +92,19 @@ class WorldConfig:
         _positive(self.sound_speed, "world.sound_speed")
         _positive(self.water_depth, "world.water_depth")
         _positive(self.region_radius, "world.region_radius")
-        _check(len(self.fixed_position) == 3, "world.fixed_position", "must be [x, y, z] in metres")
+        require(len(self.fixed_position) == 3, "world.fixed_position", "must be [x, y, z] in metres")
         z = self.fixed_position[2]
-        _check(
+        require(
             -self.water_depth < z < 0,
             "world.fixed_position",
             f"z = {z} m is outside the water column (-{self.water_depth}, 0)",
         )
-        _check(
+        require(
             -1 <= self.surface_reflection <= 0,
             "world.surface_reflection",
             "must lie in [-1, 0] (pressure-release surface)",
         )
-        _check(0 <= self.bed_reflection <= 1, "world.bed_reflection", "must lie in [0, 1]")
+        require(0 <= self.bed_reflection <= 1, "world.bed_reflection", "must lie in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -123,13 +126,13 @@ class SourceConfig:
     source_level_db: float = 140.0  # dB re 1 uPa at 1 m, in the receiver band
 
     def __post_init__(self) -> None:
-        _choice(self.motion, SOURCE_MOTIONS, "source.motion")
-        _choice(self.waveform, WAVEFORMS, "source.waveform")
+        require_choice(self.motion, SOURCE_MOTIONS, "source.motion")
+        require_choice(self.waveform, WAVEFORMS, "source.waveform")
         _positive(self.frequency, "source.frequency")
         _positive(self.initial_radius, "source.initial_radius")
         _ordered_pair(self.speed_range, "source.speed_range")
         _positive(self.max_speed, "source.max_speed")
-        _check(
+        require(
             self.speed_range[1] <= self.max_speed,
             "source.speed_range",
             f"upper end must not exceed source.max_speed = {self.max_speed}",
@@ -138,8 +141,8 @@ class SourceConfig:
         _ordered_pair(self.turn_rate_range, "source.turn_rate_range")
         _non_negative(self.max_vertical_speed, "source.max_vertical_speed")
         _non_negative(self.boundary_margin, "source.boundary_margin")
-        _check(math.isfinite(self.range_rate_bias), "source.range_rate_bias", "must be finite")
-        _check(isinstance(self.confined, bool), "source.confined", f"must be true or false, got {self.confined!r}")
+        require(math.isfinite(self.range_rate_bias), "source.range_rate_bias", "must be finite")
+        require(isinstance(self.confined, bool), "source.confined", f"must be true or false, got {self.confined!r}")
 
 
 @dataclass(frozen=True)
@@ -159,9 +162,9 @@ class ReceiverConfig:
     nav_drift_sd: float = 0.0  # m/sqrt(s), random-walk drift of the reported position (0 = none)
 
     def __post_init__(self) -> None:
-        _choice(self.kind, RECEIVER_KINDS, "receiver.kind")
+        require_choice(self.kind, RECEIVER_KINDS, "receiver.kind")
         _positive(self.max_speed, "receiver.max_speed")
-        _check(len(self.start_position) == 3, "receiver.start_position", "must be [x, y, z] in metres")
+        require(len(self.start_position) == 3, "receiver.start_position", "must be [x, y, z] in metres")
         _non_negative(self.keep_out_radius, "receiver.keep_out_radius")
         _non_negative(self.min_depth, "receiver.min_depth")
         _non_negative(self.bed_clearance, "receiver.bed_clearance")
@@ -188,7 +191,7 @@ class MeasurementConfig:
     range_rate_difference_sd: float = 0.02  # m/s, sigma_V (geometric mode; likewise)
 
     def __post_init__(self) -> None:
-        _choice(self.mode, MEASUREMENT_MODES, "measurement.mode")
+        require_choice(self.mode, MEASUREMENT_MODES, "measurement.mode")
         _positive(self.rate, "measurement.rate")
         _positive(self.range_difference_sd, "measurement.range_difference_sd")
         _positive(self.range_rate_difference_sd, "measurement.range_rate_difference_sd")
@@ -212,8 +215,8 @@ class SignalConfig:
     detection_snr_db: float = 13.0
 
     def __post_init__(self) -> None:
-        _choice(self.path, SIGNAL_PATHS, "signal.path")
-        _check(
+        require_choice(self.path, SIGNAL_PATHS, "signal.path")
+        require(
             math.isfinite(self.detection_snr_db),
             "signal.detection_snr_db",
             f"must be finite, got {self.detection_snr_db}",
@@ -227,13 +230,13 @@ class SignalConfig:
         ):
             _positive(getattr(self, name), f"signal.{name}")
         _non_negative(self.guard, "signal.guard")
-        _check(
+        require(
             isinstance(self.windows, int) and self.windows >= 2,
             "signal.windows",
             f"must be an integer >= 2, got {self.windows!r}",
         )
-        _check(self.sd_inflation >= 1, "signal.sd_inflation", "must be >= 1")
-        _check(
+        require(self.sd_inflation >= 1, "signal.sd_inflation", "must be >= 1")
+        require(
             self.envelope_rate <= self.sample_rate,
             "signal.envelope_rate",
             f"must not exceed signal.sample_rate = {self.sample_rate}",
@@ -256,8 +259,8 @@ class FaultConfig:
     clip_level: float = 0.1  # saturation, in units of the frame's RMS amplitude (clipped)
 
     def __post_init__(self) -> None:
-        _choice(self.kind, FAULT_KINDS, "fault.kind")
-        _choice(self.channel, FAULT_CHANNELS, "fault.channel")
+        require_choice(self.kind, FAULT_KINDS, "fault.kind")
+        require_choice(self.channel, FAULT_CHANNELS, "fault.channel")
         _non_negative(self.start, "fault.start")
         _non_negative(self.duration, "fault.duration")
         _positive(self.clip_level, "fault.clip_level")
@@ -303,13 +306,13 @@ class FilterConfig:
     frame_samples: int = 3  # signal mode, phasor model: times per frame the model is averaged over (1: the centre)
 
     def __post_init__(self) -> None:
-        _choice(self.motion_model, FILTER_MODELS, "filter.motion_model")
-        _choice(self.multipath, MULTIPATH_MODELS, "filter.multipath")
+        require_choice(self.motion_model, FILTER_MODELS, "filter.motion_model")
+        require_choice(self.multipath, MULTIPATH_MODELS, "filter.multipath")
         for name in ("acceleration_psd", "jerk_psd", "turn_rate_psd", "range_bias_psd", "rate_bias_psd"):
             _non_negative(getattr(self, name), f"filter.{name}")
-        _check(0 < self.alpha <= 1, "filter.alpha", f"must lie in (0, 1], got {self.alpha}")
+        require(0 < self.alpha <= 1, "filter.alpha", f"must lie in (0, 1], got {self.alpha}")
         _non_negative(self.beta, "filter.beta")
-        _check(math.isfinite(self.kappa), "filter.kappa", "must be finite")
+        require(math.isfinite(self.kappa), "filter.kappa", "must be finite")
         _positive(self.divergence_window, "filter.divergence_window")
         _positive(self.divergence_nis, "filter.divergence_nis")
         _positive(self.reinit_window, "filter.reinit_window")
@@ -318,16 +321,16 @@ class FilterConfig:
         _positive(self.ripple_lock_sd, "filter.ripple_lock_sd")
         _positive(self.ripple_split_sd, "filter.ripple_split_sd")
         _positive(self.ripple_window, "filter.ripple_window")
-        _check(
+        require(
             isinstance(self.window_fit, bool), "filter.window_fit", f"must be true or false, got {self.window_fit!r}"
         )
         _non_negative(self.sheet_check_interval, "filter.sheet_check_interval")
-        _check(
+        require(
             isinstance(self.frame_samples, int) and self.frame_samples >= 1,
             "filter.frame_samples",
             f"must be an integer >= 1, got {self.frame_samples!r}",
         )
-        _check(
+        require(
             self.recovery_inflation >= 1, "filter.recovery_inflation", f"must be >= 1, got {self.recovery_inflation}"
         )
 
@@ -354,23 +357,23 @@ class InitializerConfig:
     acceleration_prior_sd: float = 0.01  # m/s^2; lcmap with a ca filter fits the acceleration under this prior
 
     def __post_init__(self) -> None:
-        _choice(self.name, INITIALIZERS, "initializer.name")
+        require_choice(self.name, INITIALIZERS, "initializer.name")
         _positive(self.burst_duration, "initializer.burst_duration")
-        _check(self.candidate_directions >= 8, "initializer.candidate_directions", "must be >= 8")
-        _check(math.isfinite(self.information_weight), "initializer.information_weight", "must be finite")
+        require(self.candidate_directions >= 8, "initializer.candidate_directions", "must be >= 8")
+        require(math.isfinite(self.information_weight), "initializer.information_weight", "must be finite")
         _non_negative(self.reseed_interval, "initializer.reseed_interval")
         _non_negative(self.reseed_until, "initializer.reseed_until")
-        _check(
+        require(
             isinstance(self.hypotheses, int) and self.hypotheses >= 1,
             "initializer.hypotheses",
             f"must be an integer >= 1, got {self.hypotheses!r}",
         )
         for name in ("velocity_prior_sd", "max_source_speed", "position_sd", "range_bias_sd", "rate_bias_sd"):
             _positive(getattr(self, name), f"initializer.{name}")
-        _check(self.covariance_inflation >= 1, "initializer.covariance_inflation", "must be >= 1")
+        require(self.covariance_inflation >= 1, "initializer.covariance_inflation", "must be >= 1")
         _positive(self.max_turn_rate, "initializer.max_turn_rate")
         _positive(self.acceleration_prior_sd, "initializer.acceleration_prior_sd")
-        _check(
+        require(
             isinstance(self.turn_rate_steps, int) and self.turn_rate_steps >= 1,
             "initializer.turn_rate_steps",
             f"must be an integer >= 1, got {self.turn_rate_steps!r}",
@@ -400,7 +403,7 @@ class RewardConfig:
 
     def __post_init__(self) -> None:
         for name in ("information_gain", "error_shrinkage", "control_effort", "constraint_penalty", "success_bonus"):
-            _check(math.isfinite(getattr(self, name)), f"reward.{name}", "must be finite")
+            require(math.isfinite(getattr(self, name)), f"reward.{name}", "must be finite")
         _positive(self.success_threshold, "reward.success_threshold")
 
 
@@ -446,9 +449,9 @@ class PatrolConfig:
         ):
             _positive(getattr(self, name), f"patrol.{name}")
         _non_negative(self.depth_min, "patrol.depth_min")
-        _check(self.depth_min <= self.depth_max, "patrol.depth_max", "must be >= patrol.depth_min")
+        require(self.depth_min <= self.depth_max, "patrol.depth_max", "must be >= patrol.depth_min")
         _non_negative(self.spiral_radius_min, "patrol.spiral_radius_min")
-        _check(
+        require(
             self.spiral_radius_min < self.spiral_radius_max,
             "patrol.spiral_radius_max",
             "must be > patrol.spiral_radius_min",
@@ -475,30 +478,30 @@ class EnvConfig:
             _check_finite(getattr(self, section.name), section.name)
         start = self.receiver.start_position
         depth = self.world.water_depth
-        _check(
+        require(
             -depth + self.receiver.bed_clearance <= start[2] <= -self.receiver.min_depth,
             "receiver.start_position",
             f"z = {start[2]} m must lie between -{depth} + bed_clearance and -min_depth",
         )
-        _check(
+        require(
             self.patrol.depth_max < depth - self.receiver.bed_clearance,
             "patrol.depth_max",
             f"must be shallower than the bed ({depth} m) less receiver.bed_clearance",
         )
-        _check(
+        require(
             self.source.initial_radius <= self.world.region_radius,
             "source.initial_radius",
             f"must not exceed world.region_radius = {self.world.region_radius}",
         )
-        _check(
+        require(
             2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source"
         )
-        _check(
+        require(
             self.signal.frame_duration <= 1.0 / self.measurement.rate + 1e-12,
             "signal.frame_duration",
             f"must not exceed one step (1 / measurement.rate = {1.0 / self.measurement.rate} s)",
         )
-        _check(
+        require(
             self.fault.kind in ("none", "dropped") or self.measurement.mode == "signal",
             "fault.kind",
             f"{self.fault.kind!r} corrupts a synthesized frame: it needs measurement.mode signal",
@@ -565,31 +568,34 @@ def _coerce(value: Any, annotation: Any, path: str) -> Any:
         (inner,) = [a for a in options if a is not type(None)]
         return _coerce(value, inner, path)
     if origin is tuple:
-        _check(isinstance(value, (list, tuple)), path, f"must be a list, got {value!r}")
+        require(isinstance(value, (list, tuple)), path, f"must be a list, got {value!r}")
         inner = typing.get_args(annotation)
         if len(inner) == 2 and inner[1] is Ellipsis:
             return tuple(_coerce(v, inner[0], f"{path}[{i}]") for i, v in enumerate(value))
-        _check(len(value) == len(inner), path, f"must have {len(inner)} entries, got {len(value)}")
+        require(len(value) == len(inner), path, f"must have {len(inner)} entries, got {len(value)}")
         return tuple(_coerce(v, t, f"{path}[{i}]") for i, (v, t) in enumerate(zip(value, inner)))
     if annotation is bool:
-        _check(isinstance(value, bool), path, f"must be true or false, got {value!r}")
+        require(isinstance(value, bool), path, f"must be true or false, got {value!r}")
         return value
     if annotation is int:
-        _check(isinstance(value, int) and not isinstance(value, bool), path, f"must be an integer, got {value!r}")
+        require(isinstance(value, int) and not isinstance(value, bool), path, f"must be an integer, got {value!r}")
         return value
     if annotation is float:
-        _check(
+        require(
             isinstance(value, (int, float)) and not isinstance(value, bool), path, f"must be a number, got {value!r}"
         )
         return float(value)
     if annotation is str:
-        _check(isinstance(value, str), path, f"must be a string, got {value!r}")
+        require(isinstance(value, str), path, f"must be a string, got {value!r}")
         return value
     raise TypeError(f"unsupported annotation {annotation!r} at {path}")
 
 
-def _build(cls: type, data: Mapping[str, Any], path: str) -> Any:
-    _check(isinstance(data, Mapping), path or "config", f"must be a mapping, got {type(data).__name__}")
+def build_section(cls: type, data: Mapping[str, Any], path: str) -> Any:
+    """The dataclass ``cls`` from plain values, its sections built in turn and every value converted to
+    its field's type; an unknown key, a wrong type or a failed check raises :class:`ConfigError` naming
+    the key under ``path``."""
+    require(isinstance(data, Mapping), path or "config", f"must be a mapping, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields))
@@ -600,7 +606,7 @@ def _build(cls: type, data: Mapping[str, Any], path: str) -> Any:
     for name, value in data.items():
         hint = hints[name]
         if isinstance(hint, type) and dataclasses.is_dataclass(hint):  # a section (hints are classes)
-            kwargs[name] = _build(hint, value, f"{prefix}{name}")
+            kwargs[name] = build_section(hint, value, f"{prefix}{name}")
         else:
             kwargs[name] = _coerce(value, hint, f"{prefix}{name}")
     return cls(**kwargs)
@@ -608,7 +614,7 @@ def _build(cls: type, data: Mapping[str, Any], path: str) -> Any:
 
 def from_dict(data: Mapping[str, Any] | None) -> EnvConfig:
     """Build and validate an :class:`EnvConfig` from nested plain values (missing keys keep defaults)."""
-    return _build(EnvConfig, data or {}, "")
+    return build_section(EnvConfig, data or {}, "")
 
 
 def load_config(path: str | Path) -> EnvConfig:

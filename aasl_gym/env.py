@@ -280,11 +280,13 @@ class AASLEnv(gym.Env):
         z = self._measure()
         out = self._track(z)
         fim_logdet = self._gather_information(z)
-        terms = self._reward_terms(action, hit, fim_logdet, out.initialized)
+        error = self._position_error()
+        # The metrics and rewards count from the tracker's own estimate; info reports the prior's error before it.
+        terms = self._reward_terms(action, hit, fim_logdet, error if out.initialized else math.nan)
         converged = self._error < self.config.episode.convergence_threshold
         terminated = bool(self.config.episode.terminate_on_convergence and converged)
         truncated = self._steps >= self.max_steps
-        info = self._info(z, out, fim_logdet, terms, converged)
+        info = self._info(z, out, fim_logdet, terms, converged, error)
         if terminated or truncated:
             info.update(self.episode_summary())
         self._record_trajectory(out.initialized)
@@ -374,12 +376,10 @@ class AASLEnv(gym.Env):
         """m, of the reported estimate (the prior's mean before the filter starts)."""
         return float(np.linalg.norm(self.tracker.position - self.source.position))
 
-    def _reward_terms(self, action: np.ndarray, hit: bool, fim_logdet: float, initialized: bool) -> dict[str, float]:
-        """The step's weighted reward terms; the running information and error, and the episode's error
-        history, move on to this step's."""
+    def _reward_terms(self, action: np.ndarray, hit: bool, fim_logdet: float, error: float) -> dict[str, float]:
+        """The step's weighted reward terms, ``error`` (m) that of the tracker's estimate (NaN before it
+        starts); the running information and error, and the episode's error history, move on to this step's."""
         cfg = self.config
-        # The metrics and rewards count from the tracker's own estimate; info reports the prior's error before it.
-        error = self._position_error() if initialized else math.nan
         first_success = not self._succeeded and error < cfg.reward.success_threshold
         self._succeeded |= first_success
         terms = rewards.weighted_terms(
@@ -398,9 +398,15 @@ class AASLEnv(gym.Env):
         return terms
 
     def _info(
-        self, z: np.ndarray, out: TrackerOutput, fim_logdet: float, terms: dict[str, float], converged: bool
+        self,
+        z: np.ndarray,
+        out: TrackerOutput,
+        fim_logdet: float,
+        terms: dict[str, float],
+        converged: bool,
+        position_error: float,
     ) -> dict[str, Any]:
-        """The step's ``info`` (see the class docstring)."""
+        """The step's ``info`` (see the class docstring); ``position_error`` (m) is the reported estimate's."""
         return {
             "time": self._time,
             "source_position": self.source.position.copy(),
@@ -411,7 +417,7 @@ class AASLEnv(gym.Env):
             "fixed_position": self.fixed.copy(),
             "estimate_position": self.tracker.position,
             "estimate_velocity": self.tracker.velocity,
-            "position_error": self._position_error(),
+            "position_error": position_error,
             "position_covariance": self.tracker.position_covariance,
             "measurement": np.asarray(z, dtype=float),
             "measurement_true": direct_measurement(

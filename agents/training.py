@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from aasl_gym.config import ConfigError, _build, _check, _choice, to_dict  # the env config's own validation
+from aasl_gym.config import ConfigError, build_section, require, require_choice, to_dict
 from aasl_gym.registration import ENV_IDS
 
 ALGORITHMS = ("ppo", "sac", "td3", "a2c", "recurrent-ppo")
@@ -39,11 +39,13 @@ class Schedule:
     normalize_reward: bool = False  # running scale of the discounted return (VecNormalize)
 
     def __post_init__(self) -> None:
-        _choice(self.env, tuple(sorted(ENV_IDS)), "schedule.env")
+        require_choice(self.env, tuple(sorted(ENV_IDS)), "schedule.env")
         for name in ("timesteps", "n_envs", "eval_every", "eval_episodes", "checkpoint_every"):
             value = getattr(self, name)
-            _check(isinstance(value, int) and value >= 1, f"schedule.{name}", f"must be an integer >= 1, got {value!r}")
-        _check(
+            require(
+                isinstance(value, int) and value >= 1, f"schedule.{name}", f"must be an integer >= 1, got {value!r}"
+            )
+        require(
             isinstance(self.eval_seed, int) and self.eval_seed >= 0,
             "schedule.eval_seed",
             f"must be an integer >= 0, got {self.eval_seed!r}",
@@ -63,11 +65,11 @@ REQUIRED = tuple(f.name for f in dataclasses.fields(Schedule) if f.default is da
 
 def schedule_from_dict(data: Mapping[str, Any]) -> Schedule:
     """Build and validate a :class:`Schedule` from plain values (the optional keys keep their defaults)."""
-    _check(isinstance(data, Mapping), "schedule", f"must be a mapping, got {type(data).__name__}")
+    require(isinstance(data, Mapping), "schedule", f"must be a mapping, got {type(data).__name__}")
     missing = [name for name in REQUIRED if name not in data]
     if missing:
         raise ConfigError(f"schedule needs integer {', '.join(REQUIRED[:-1])} and {REQUIRED[-1]} (missing: {missing})")
-    return _build(Schedule, data, "schedule")
+    return build_section(Schedule, data, "schedule")
 
 
 def load_training(path: str | Path, algo: str) -> tuple[Schedule, dict[str, Any]]:
@@ -82,7 +84,7 @@ def load_training(path: str | Path, algo: str) -> tuple[Schedule, dict[str, Any]
         raise ConfigError(f"{path} is not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or "schedule" not in data or algo not in data:
         raise ConfigError(f"{path} needs a 'schedule' section and a '{algo}' section")
-    _check(
+    require(
         isinstance(data[algo], Mapping), algo, f"must be a mapping of {algo}'s keyword arguments, got {data[algo]!r}"
     )
     return schedule_from_dict(data["schedule"]), dict(data[algo])

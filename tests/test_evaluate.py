@@ -6,7 +6,7 @@ import sys
 import pytest
 
 import evaluate
-from aasl_gym.study import runner
+from agents import study
 
 
 def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
@@ -207,8 +207,8 @@ def test_an_interrupted_evaluation_resumes_where_it_stopped(tmp_path, monkeypatc
     (cut / "episodes.jsonl").write_text("\n".join(lines[:2]) + "\n" + lines[2][: len(lines[2]) // 2])
 
     ran = []
-    run_episode = runner.run_episode
-    monkeypatch.setattr(runner, "run_episode", lambda job: ran.append((job.policy, job.seed)) or run_episode(job))
+    run_episode = study.run_episode
+    monkeypatch.setattr(evaluate, "run_episode", lambda job: ran.append((job.policy, job.seed)) or run_episode(job))
     assert evaluate.main(flags + ["--out", str(cut), "--resume"]) == 0
     assert len(ran) == 3  # the torn episode ran again, the complete one did not
     episodes = [json.loads((out / "results.json").read_text())["episodes"] for out in (whole, cut)]

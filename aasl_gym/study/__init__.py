@@ -3,7 +3,8 @@
 ``evaluate.py`` is the command line; this package is the library behind it, one job per module:
 
 - :mod:`~aasl_gym.study.jobs`: the grid of episodes (:class:`~aasl_gym.study.jobs.Job`) and each one's key;
-- :mod:`~aasl_gym.study.runner`: one episode, and many on a process pool or as Ray tasks;
+- :mod:`~aasl_gym.study.runner`: many episodes in this process, on a process pool or as Ray tasks (what
+  runs one is given: :func:`agents.study.run_episode` flies the agents, which this package does not import);
 - :mod:`~aasl_gym.study.log`: ``episodes.jsonl``, the log a study resumes from;
 - :mod:`~aasl_gym.study.stats`: summaries with confidence intervals, paired comparisons;
 - :mod:`~aasl_gym.study.report`: ``report.md``, ``results.json`` and the console table;

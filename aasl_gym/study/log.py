@@ -11,6 +11,8 @@ from typing import Any
 
 from aasl_gym.io import atomic_write_text
 
+Row = dict[str, Any]  # one episode's results (``agents.rollout``'s keys), as the log keeps them
+
 
 class LogMismatch(ValueError):
     """An existing log cannot be resumed: it has no config line, or another config's."""
@@ -28,7 +30,7 @@ class EpisodeLog:
         """A new log holding only the config line (replacing any earlier one)."""
         atomic_write_text(self.path, json.dumps(self.header) + "\n")
 
-    def read(self) -> dict[tuple, dict]:
+    def read(self) -> dict[tuple, Row]:
         """The rows of an earlier run by episode key (none if there is no log). A torn last line (the run
         killed mid-write) is skipped: that episode runs again. Raises :class:`LogMismatch` for a log
         without a config line or with another config than this one."""
@@ -53,11 +55,11 @@ class EpisodeLog:
         return done
 
     @contextmanager
-    def appending(self) -> Iterator[Callable[[tuple, dict], None]]:
+    def appending(self) -> Iterator[Callable[[tuple, Row], None]]:
         """A function that appends one episode's line (its key and row) and flushes it at once."""
         with open(self.path, "a") as handle:
 
-            def append(key: tuple, row: dict) -> None:
+            def append(key: tuple, row: Row) -> None:
                 handle.write(json.dumps({"key": key, "row": row}) + "\n")
                 handle.flush()
 

@@ -4,7 +4,6 @@ combination and motion, and the recorded episodes' paths in top and depth views.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -14,8 +13,8 @@ from aasl_gym.io import atomic_write
 from aasl_gym.metrics import SUCCESS_THRESHOLDS
 from aasl_gym.render import draw_episode
 from aasl_gym.study.jobs import MOTIONS
+from aasl_gym.study.log import Row
 
-Row = dict[str, Any]
 Trajectory = tuple[str, str, int, dict]  # policy, motion, seed, the episode's paths by name
 
 

@@ -5,12 +5,10 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
 
 from aasl_gym.config import EnvConfig, to_dict
 from aasl_gym.io import atomic_write_json, atomic_write_text
-
-Row = dict[str, Any]
+from aasl_gym.study.log import Row
 
 SUMMARY_HEADER = [
     "| policy | initializer | motion | n | success 0.5 m | success 1 m | success 3 m | mean conv. time (s) [95 % CI] "

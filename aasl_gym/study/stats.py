@@ -9,12 +9,11 @@ censored statistics count such an episode as the full episode ``duration``.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 from scipy import stats
 
-Row = dict[str, Any]
+from aasl_gym.study.log import Row
 
 
 def mean_ci95(values: Sequence[float] | np.ndarray) -> tuple[float | None, list[float | None]]:

@@ -1,0 +1,68 @@
+"""What a study runs for one job: the policy it names, flown on its env from its seed, and the row of
+results :mod:`aasl_gym.study` logs and summarizes (:func:`run_episode`, given to
+:func:`aasl_gym.study.runner.run_jobs`). Module level, so that pool and Ray workers import it by name."""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from aasl_gym.env import AASLEnv
+from aasl_gym.registration import ENV_IDS
+from aasl_gym.study.jobs import Job
+from aasl_gym.study.log import Row
+from agents.policies import make_policy
+from agents.rollout import play_episode
+
+
+@lru_cache(maxsize=8)
+def trained_model(spec: str):
+    """The trained policy ``ALGO:PATH``, loaded once per process (:func:`agents.sb3.load_model`, with its
+    errors for a missing or corrupt file)."""
+    from agents.sb3 import load_model  # torch: only where a trained policy flies
+
+    return load_model(spec)
+
+
+def _finite_or_none(value) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def run_episode(job: Job) -> Row:
+    """One episode; returns its results row. Scripted policies fly ``AASL-v0``; a trained model flies
+    the env it was trained on (a residual model needs its patrol's command), with the same source,
+    noise and metrics for the same seed."""
+    policy = trained_model(job.policy) if ":" in job.policy else None
+    patrol = ENV_IDS[policy.env_id] if policy is not None else None
+    env = AASLEnv(
+        job.config,
+        source_motion=job.motion,
+        initializer=job.initializer,
+        measurement=job.measurement,
+        filter_model=job.filter_model,
+        patrol=patrol,
+    )
+    if policy is None:
+        policy = make_policy(job.policy, env.config, seed=job.seed)
+    info = play_episode(env, policy, job.seed)
+    env.close()
+    row = {
+        "policy": job.policy,
+        "initializer": job.initializer,
+        "motion": job.motion,
+        "source_motion": env.source.kind,
+        "measurement": job.measurement,
+        "seed": job.seed,
+        "convergence_time": _finite_or_none(info["convergence_time"]),
+        "success": info["success"],
+        "rmse": _finite_or_none(info["rmse"]),
+        "final_error": _finite_or_none(info["final_error"]),
+        "time_to_first_estimate": _finite_or_none(info["time_to_first_estimate"]),
+        "reinitializations": int(info["reinitializations"]),
+    }
+    if job.record:
+        row["trajectory"] = {name: np.asarray(points).tolist() for name, points in env.trajectory.items()}
+    return row
