@@ -454,16 +454,21 @@ class LCMAPInitializer:
         with_acceleration: bool = False,
     ) -> np.ndarray:
         """d[RD, RRD]_k / d[p(t0), v(t0) (, a)] for every candidate and burst sample: (C, K, 2, 6 or 9)."""
+        local = LCMAPInitializer._local_jacobians(burst, positions, velocities, motion)
+        return motion.chain(local, with_acceleration, overwrite=True)
+
+    @staticmethod
+    def _local_jacobians(burst: Burst, positions, velocities, motion: CandidateMotion) -> np.ndarray:
+        """d[RD, RRD]_k / d[p(t_k), v(t_k)] along each candidate's trajectory: (C, K, 2, 6)."""
         trajectory, trajectory_velocity = motion.trajectory(positions, velocities)
         # The [p, v] columns of fisher.measurement_jacobian, without copying them into its 8 columns first.
-        local = geometry.direct_jacobian(
+        return geometry.direct_jacobian(
             trajectory,
             trajectory_velocity,
             burst.receiver_positions[None],
             burst.receiver_velocities[None],
             burst.fixed_position,
         )
-        return motion.chain(local, with_acceleration, overwrite=True)
 
     def _solve_velocities(
         self, burst: Burst, positions: np.ndarray, biases: np.ndarray, motion: CandidateMotion, copies: int = 1
@@ -494,14 +499,7 @@ class LCMAPInitializer:
         at_rest = CandidateMotion(motion.tau, np.zeros(distinct))
         still, zero = positions[:distinct], np.zeros((distinct, 3))
         _, residual, white = _burst_chi_square(burst, still, zero, biases[:distinct], at_rest)
-        trajectory, trajectory_velocity = at_rest.trajectory(still, zero)
-        local = geometry.direct_jacobian(
-            trajectory,
-            trajectory_velocity,
-            burst.receiver_positions[None],
-            burst.receiver_velocities[None],
-            burst.fixed_position,
-        )
+        local = self._local_jacobians(burst, still, zero, at_rest)
         if white.ndim > 2:  # a robust burst's weights are per residual
             white = np.tile(white, (copies, 1, 1, 1))
         return np.tile(residual, (copies, 1, 1)), white, motion.chain(np.tile(local, (copies, 1, 1, 1)), overwrite=True)
