@@ -76,3 +76,24 @@ def test_the_log_refuses_another_config_or_no_header(tmp_path):
     path.write_text(json.dumps({"key": [], "row": {}}) + "\n")
     with pytest.raises(LogMismatch, match="does not start with a config line"):
         EpisodeLog(path, other).read()
+
+
+def test_pool_workers_run_their_linear_algebra_on_one_thread(monkeypatch):
+    """A pool's workers are its cores: BLAS threads on top would oversubscribe them. Each spawned worker
+    sees one thread per library (unless the user set a count), and the parent's environment is left as
+    it was."""
+    import os
+
+    from aasl_gym.study.runner import THREAD_VARIABLES, Backend, episode_runner
+
+    for name in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")  # the user's own choice wins
+    with episode_runner(Backend("process", workers=2), os.getenv) as run_all:
+        seen = list(run_all(list(THREAD_VARIABLES)))
+    assert dict(zip(THREAD_VARIABLES, seen)) == {
+        "OMP_NUM_THREADS": "3",
+        "OPENBLAS_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+    }
+    assert "OPENBLAS_NUM_THREADS" not in os.environ and os.environ["OMP_NUM_THREADS"] == "3"
