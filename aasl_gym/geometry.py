@@ -177,8 +177,21 @@ def multipath_factor(
 ) -> np.ndarray:
     """M = S / S_direct (complex) at ``receiver``: the tone through the surface and bed images relative to
     the direct path alone (|M| scales the received amplitude, its phase the apparent range)."""
+    gains = (surface_reflection, bed_reflection)
+    return _stationary_factors(source, (receiver,), water_depth, gains, wavenumber)[0][0]
+
+
+def _stationary_factors(
+    source: np.ndarray,
+    receivers: tuple[np.ndarray, ...],
+    water_depth: float,
+    gains: tuple[float, float],
+    wavenumber: float,
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]]:
+    """:func:`_multipath_factor` at each of ``receivers``, the images made once; their velocities are
+    not needed (what uses this takes no rates)."""
     images = image_sources(source, np.zeros_like(source), water_depth)
-    return _multipath_factor(source, receiver, images, (surface_reflection, bed_reflection), wavenumber)[0]
+    return [_multipath_factor(source, receiver, images, gains, wavenumber) for receiver in receivers]
 
 
 def phasor_range_difference(
@@ -193,9 +206,9 @@ def phasor_range_difference(
     """The apparent RD (m) of :func:`phasor_multipath` alone, to the last bit, without the rates: what a
     frame's RD track is made of (its slope is the frame's RRD), at about two thirds of the cost."""
     gains = (surface_reflection, bed_reflection)
-    images = image_sources(source, np.zeros_like(source), water_depth)
-    factor_m, range_m, _, _ = _multipath_factor(source, mobile, images, gains, wavenumber)
-    factor_f, range_f, _, _ = _multipath_factor(source, fixed, images, gains, wavenumber)
+    (factor_m, range_m, _, _), (factor_f, range_f, _, _) = _stationary_factors(
+        source, (mobile, fixed), water_depth, gains, wavenumber
+    )
     return (range_m - range_f) + (np.angle(factor_f) - np.angle(factor_m)) / wavenumber
 
 
@@ -218,11 +231,9 @@ def phasor_range_difference_gradients(
     the receiver dd = -u . dr and dr_i = -u_i . dr (u, u_i the unit vectors from the receiver).
     """
     gains = (surface_reflection, bed_reflection)
-    images = image_sources(source, np.zeros_like(source), water_depth)
     mirror = np.array([1.0, 1.0, -1.0])
     gradients = []
-    for receiver in (mobile, fixed):
-        factor, direct, unit, terms = _multipath_factor(source, receiver, images, gains, wavenumber)
+    for factor, direct, unit, terms in _stationary_factors(source, (mobile, fixed), water_depth, gains, wavenumber):
         phase_source = np.zeros(np.shape(unit))
         phase_receiver = np.zeros(np.shape(unit))
         for term, image_range, image_unit in terms:
