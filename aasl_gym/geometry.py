@@ -222,7 +222,23 @@ def phasor_range_difference_gradients(
     wavenumber: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Gradients (..., 3) of :func:`phasor_range_difference` with respect to the source position and the
-    mobile hydrophone's position (dimensionless), in closed form.
+    mobile hydrophone's position (dimensionless), in closed form (:func:`phasor_range_difference_linearized`)."""
+    return phasor_range_difference_linearized(
+        source, mobile, fixed, water_depth, surface_reflection, bed_reflection, wavenumber
+    )[1:]
+
+
+def phasor_range_difference_linearized(
+    source: np.ndarray,
+    mobile: np.ndarray,
+    fixed: np.ndarray,
+    water_depth: float,
+    surface_reflection: float,
+    bed_reflection: float,
+    wavenumber: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`phasor_range_difference` (m, to the last bit) and its gradients (..., 3) with respect to the
+    source position and the mobile hydrophone's position, from one set of multipath factors.
 
     RD_app = (d_m - d_f) + (phi_f - phi_m) / k with phi the phase of a receiver's multipath factor
     M = 1 + sum_i T_i, T_i = a_i (d / r_i) exp(-j k (r_i - d)). A small move changes log T_i by
@@ -232,8 +248,9 @@ def phasor_range_difference_gradients(
     """
     gains = (surface_reflection, bed_reflection)
     mirror = np.array([1.0, 1.0, -1.0])
+    factors = _stationary_factors(source, (mobile, fixed), water_depth, gains, wavenumber)
     gradients = []
-    for factor, direct, unit, terms in _stationary_factors(source, (mobile, fixed), water_depth, gains, wavenumber):
+    for factor, direct, unit, terms in factors:
         phase_source = np.zeros(np.shape(unit))
         phase_receiver = np.zeros(np.shape(unit))
         for term, image_range, image_unit in terms:
@@ -244,10 +261,12 @@ def phasor_range_difference_gradients(
             phase_source += sine * (along_direct - mirrored_along) - wavenumber * cosine * (mirrored - unit)
             phase_receiver += sine * (along_image - along_direct) - wavenumber * cosine * (unit - image_unit)
         gradients.append((unit, phase_source, phase_receiver))
+    (factor_m, range_m, _, _), (factor_f, range_f, _, _) = factors
+    range_difference = (range_m - range_f) + (np.angle(factor_f) - np.angle(factor_m)) / wavenumber
     (unit_m, source_m, receiver_m), (unit_f, source_f, _) = gradients
     source_gradient = (unit_m - unit_f) + (source_f - source_m) / wavenumber
     mobile_gradient = -unit_m - receiver_m / wavenumber
-    return source_gradient, mobile_gradient
+    return range_difference, source_gradient, mobile_gradient
 
 
 def phasor_multipath(

@@ -114,6 +114,12 @@ def frame_averaged(
         np.asarray(mobile, dtype=float)[..., None, :] + along * mobile_velocity[..., None, :],
         fixed,
     )
+    return _frame_mean_and_slope(rd, offsets, wavenumber)
+
+
+def _frame_mean_and_slope(rd: np.ndarray, offsets: np.ndarray, wavenumber: float) -> np.ndarray:
+    """[mean, least-squares slope] (..., 2) of a frame's RD track (..., S) sampled at ``offsets``,
+    unwrapped across them (wavenumber k, rad/m)."""
     rd = np.unwrap(rd * wavenumber, axis=-1) / wavenumber
     mean = rd.mean(axis=-1)
     slope = (rd - mean[..., None]) @ offsets / (offsets @ offsets)
@@ -147,16 +153,26 @@ class FrameAveragedPhasor:
         state = (position, velocity, mobile, mobile_velocity, fixed)
         return frame_averaged(range_difference, self.offsets, self.propagation.wavenumber, *state)
 
-    def _gradients(self, position, velocity, mobile, mobile_velocity, fixed) -> tuple[np.ndarray, np.ndarray]:
-        """The instantaneous RD's gradients in the source's and the mobile's position at every frame
-        sample: (..., S, 3) each."""
+    def linearize(
+        self, position, velocity, mobile, mobile_velocity, fixed
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """[RD, RRD] (..., 2), d[RD, RRD] / d[p, v] and d[RD, RRD] / d[p_m, v_m] (..., 2, 6 each) from one
+        set of multipath factors: a window fit needs all three at every trial state. The values are
+        :meth:`__call__`'s to the last bit."""
+        rd, source_gradient, mobile_gradient = self._linearized(position, velocity, mobile, mobile_velocity, fixed)
+        values = _frame_mean_and_slope(rd, self.offsets, self.propagation.wavenumber)
+        return values, _frame_jacobian(source_gradient, self.offsets), _frame_jacobian(mobile_gradient, self.offsets)
+
+    def _linearized(self, position, velocity, mobile, mobile_velocity, fixed):
+        """The instantaneous RD (..., S) at every frame sample and its gradients in the source's and the
+        mobile's position there (..., S, 3 each)."""
         along = self.offsets[:, None]
 
         def at_samples(start, rate) -> np.ndarray:
             return np.asarray(start, dtype=float)[..., None, :] + along * np.asarray(rate, dtype=float)[..., None, :]
 
         p = self.propagation
-        return geometry.phasor_range_difference_gradients(
+        return geometry.phasor_range_difference_linearized(
             at_samples(position, velocity),
             at_samples(mobile, mobile_velocity),
             fixed,
@@ -168,11 +184,11 @@ class FrameAveragedPhasor:
 
     def state_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
         """d[RD, RRD] / d[p, v], shape (..., 2, 6)."""
-        return _frame_jacobian(self._gradients(position, velocity, mobile, mobile_velocity, fixed)[0], self.offsets)
+        return _frame_jacobian(self._linearized(position, velocity, mobile, mobile_velocity, fixed)[1], self.offsets)
 
     def receiver_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
         """d[RD, RRD] / d[p_m, v_m], shape (..., 2, 6)."""
-        return _frame_jacobian(self._gradients(position, velocity, mobile, mobile_velocity, fixed)[1], self.offsets)
+        return _frame_jacobian(self._linearized(position, velocity, mobile, mobile_velocity, fixed)[2], self.offsets)
 
 
 def _frame_jacobian(gradients: np.ndarray, offsets: np.ndarray) -> np.ndarray:

@@ -33,13 +33,14 @@ import numpy as np
 from aasl_gym.filters import MotionModel
 from aasl_gym.initializers import (
     Burst,
+    inverse_cholesky,
     periodic_residual,
     robust_loss,
     robust_weights,
     trajectory_whitener,
     whiten,
 )
-from aasl_gym.measurement_models import state_jacobian_function
+from aasl_gym.measurement_models import receiver_noise, state_jacobian_function
 
 STEP = 1e-4  # central-difference step in every state component (m, m/s, rad/s, m/s^2)
 MAX_POSITION_STEP = 5.0  # m: far from its basin a linearization is poor; no step moves further
@@ -87,41 +88,56 @@ def whitened_residuals(
     return whiten(white, periodic_residual(burst.measurements[None] - _predictions(burst, trajectory), burst))
 
 
-def _residuals(burst, model, states, white, prior_mean, prior_sd) -> tuple[np.ndarray, np.ndarray]:
-    """Whitened measurement residuals (C, 2K) and prior residuals (C, n)."""
-    measurement = whitened_residuals(burst, model, states, white)
-    return measurement.reshape(len(states), -1), (states - prior_mean) / prior_sd
+def _evaluate(burst: Burst, model: MotionModel, states: np.ndarray):
+    """At states (C, n): the R_eff whiteners (C, K, 2, 2), the whitened measurement residuals (C, 2K)
+    and, where the measurement model hands them over with its values (a ``linearize`` method, which
+    shares one set of multipath factors between the three), d[RD, RRD]/d[p, v] along each
+    trajectory (C, K, 2, 6); else None, and :func:`_jacobian` evaluates the model again."""
+    trajectory = _trajectory(burst, model, states)
+    linearize = getattr(burst.measurement_function, "linearize", None)
+    if linearize is None:
+        white, local, predictions = _whiteners(burst, trajectory), None, _predictions(burst, trajectory)
+    else:
+        mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
+        values, local, receiver = linearize(
+            trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position
+        )
+        white = inverse_cholesky(burst.noise_covariance + receiver_noise(receiver, *burst.navigation_sd))
+        predictions = values + trajectory[..., -2:]
+    residual = whiten(white, periodic_residual(burst.measurements[None] - predictions, burst))
+    return white, residual.reshape(len(states), -1), local
 
 
-def _jacobian(burst, model, states, white) -> np.ndarray:
+def _jacobian(burst, model, states, white, local=None) -> np.ndarray:
     """d(whitened prediction) / d state: (C, 2K, n), chained from the measurement model's own closed
-    form where it has one (:func:`_chained_jacobian`), else by differences (:func:`_difference_jacobian`)."""
-    local_jacobian = state_jacobian_function(burst.measurement_function)
-    if local_jacobian is not None:
-        return _chained_jacobian(burst, model, states, white, local_jacobian)
-    return _difference_jacobian(burst, model, states, white)
+    form where it has one (``local``, if already evaluated along the trajectories; :func:`_chained_jacobian`),
+    else by differences (:func:`_difference_jacobian`)."""
+    if local is None:
+        local_jacobian = state_jacobian_function(burst.measurement_function)
+        if local_jacobian is None:
+            return _difference_jacobian(burst, model, states, white)
+        centre = _trajectory(burst, model, states)
+        local = local_jacobian(
+            centre[..., 0:3],
+            centre[..., 3:6],
+            burst.receiver_positions[None],
+            burst.receiver_velocities[None],
+            burst.fixed_position,
+        )  # (C, K, 2, 6)
+    return _chained_jacobian(burst, model, states, white, local)
 
 
-def _chained_jacobian(burst, model, states, white, local_jacobian) -> np.ndarray:
-    """The measurement model's d[RD, RRD]/d[p, v] (``local_jacobian``, closed form) along each
-    trajectory, chained with d[p, v](t_k)/d state of the motion model (central differences of the
+def _chained_jacobian(burst, model, states, white, local) -> np.ndarray:
+    """The measurement model's d[RD, RRD]/d[p, v] along each trajectory (``local``, (C, K, 2, 6), closed
+    form), chained with d[p, v](t_k)/d state of the motion model (central differences of the
     trajectory alone, which costs little beside the measurement model), whitened: (C, 2K, n). The
     biases add to the prediction and stay constant along a trajectory: their columns are unit vectors."""
     count, dim = states.shape
     moving = dim - 2
     shift = STEP * np.eye(dim)[:moving, None, :]  # (moving, 1, n)
-    shifted = np.concatenate([(states + shift).reshape(-1, dim), (states - shift).reshape(-1, dim), states])
-    trajectory = _trajectory(burst, model, shifted)
-    ahead, behind = trajectory[: 2 * moving * count, :, 0:6].reshape(2, moving, count, -1, 6)
+    shifted = np.concatenate([(states + shift).reshape(-1, dim), (states - shift).reshape(-1, dim)])
+    ahead, behind = _trajectory(burst, model, shifted)[..., 0:6].reshape(2, moving, count, -1, 6)
     motion = np.moveaxis((ahead - behind) / (2 * STEP), 0, -1)  # (C, K, 6, moving)
-    centre = trajectory[2 * moving * count :]
-    local = local_jacobian(
-        centre[..., 0:3],
-        centre[..., 3:6],
-        burst.receiver_positions[None],
-        burst.receiver_velocities[None],
-        burst.fixed_position,
-    )  # (C, K, 2, 6)
     jacobian = np.zeros(local.shape[:-1] + (dim,))
     jacobian[..., :moving] = local @ motion
     jacobian[..., 0, dim - 2] = jacobian[..., 1, dim - 1] = 1.0
@@ -182,12 +198,12 @@ def fit_window(
     states = np.array(states, dtype=float)
     prior_mean = np.broadcast_to(prior_mean, states.shape)
     damping = np.full(len(states), 1e-3)
-    white = _whiteners(burst, _trajectory(burst, model, states))
-    measurement, prior = _residuals(burst, model, states, white, prior_mean, prior_sd)
+    white, measurement, local = _evaluate(burst, model, states)
+    prior = (states - prior_mean) / prior_sd
     cost = _cost(measurement, prior, robust)
     # d(whitened prediction)/d state at ``states``; a row is recomputed only where its step was taken
     # (a rejected step leaves the state, its whitener and so its Jacobian as they were).
-    jacobian = _jacobian(burst, model, states, white)
+    jacobian = _jacobian(burst, model, states, white, local)
     for _ in range(iterations):
         weights = robust_weights(measurement, robust)
         normal = _normal_matrix(jacobian, weights, prior_sd)
@@ -199,13 +215,14 @@ def fit_window(
         )[..., 0]
         step *= np.minimum(1.0, MAX_POSITION_STEP / np.maximum(np.linalg.norm(step[:, 0:3], axis=1), 1e-12))[:, None]
         trial = states + step
-        trial_white = _whiteners(burst, _trajectory(burst, model, trial))
-        trial_measurement, trial_prior = _residuals(burst, model, trial, trial_white, prior_mean, prior_sd)
+        trial_white, trial_measurement, trial_local = _evaluate(burst, model, trial)
+        trial_prior = (trial - prior_mean) / prior_sd
         trial_cost = _cost(trial_measurement, trial_prior, robust)
         better = trial_cost < cost
         states[better], white[better], cost[better] = trial[better], trial_white[better], trial_cost[better]
         measurement[better], prior[better] = trial_measurement[better], trial_prior[better]
         damping = np.where(better, damping / 3, damping * 4)
         if better.any():
-            jacobian[better] = _jacobian(burst, model, states[better], white[better])
+            accepted = None if trial_local is None else trial_local[better]
+            jacobian[better] = _jacobian(burst, model, states[better], white[better], accepted)
     return WindowFit(states, cost, _normal_matrix(jacobian, robust_weights(measurement, robust), prior_sd))

@@ -230,6 +230,11 @@ def test_the_frame_model_is_frame_averaged_to_the_last_bit(source, velocity, mob
     )
     arguments = (source, velocity, mobile, mobile_velocity, FIXED)
     np.testing.assert_array_equal(FRAME(*arguments), generic(*arguments))
+    # Its linearization (what a window fit's trial takes at once) hands over the same three arrays.
+    values, state_jacobian, mobile_jacobian = FRAME.linearize(*arguments)
+    np.testing.assert_array_equal(values, generic(*arguments))
+    np.testing.assert_array_equal(state_jacobian, FRAME.state_jacobian(*arguments))
+    np.testing.assert_array_equal(mobile_jacobian, FRAME.receiver_jacobian(*arguments))
 
 
 @given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)

@@ -12,9 +12,16 @@ from aasl_gym.measurement_models import (
     Propagation,
     direct_measurement,
     frame_offsets,
-    state_jacobian_function,
 )
-from aasl_gym.window import _chained_jacobian, _difference_jacobian, _jacobian, _trajectory, _whiteners, fit_window
+from aasl_gym.window import (
+    _difference_jacobian,
+    _evaluate,
+    _jacobian,
+    _trajectory,
+    _whiteners,
+    fit_window,
+    whitened_residuals,
+)
 
 FIXED = np.array([0.0, 0.0, -0.96])
 TIMES = np.arange(0.0, 30.0, 0.2)
@@ -140,8 +147,15 @@ def test_the_chained_jacobian_is_the_difference_jacobian(motion_model, measureme
     states = np.repeat(TRUTHS[motion_model][None], 3, axis=0)
     states[:, 0:3] += rng.normal(0, 3.0, (3, 3))
     white = _whiteners(burst, _trajectory(burst, model, states))
-    chained = _chained_jacobian(burst, model, states, white, state_jacobian_function(measurement))
-    assert np.array_equal(_jacobian(burst, model, states, white), chained)
+    chained = _jacobian(burst, model, states, white)
+    # What a fit's trial hands over (the frame model's values, whitener and local Jacobian from one set
+    # of multipath factors) is what the separate evaluations give, to the last bit.
+    evaluated_white, residual, local = _evaluate(burst, model, states)
+    assert np.array_equal(evaluated_white, white)
+    assert np.array_equal(residual, whitened_residuals(burst, model, states, white).reshape(3, -1))
+    assert (local is None) == (measurement is direct_measurement)
+    if local is not None:
+        assert np.array_equal(_jacobian(burst, model, states, white, local), chained)
     # The reference takes a finer step than the fits' differences: near an interference null, and along
     # an acceleration that moves a 30 s window's far end by 450 times its step, 0.1 mm carries the frame
     # model's curvature (off by up to a quarter of a column there).
