@@ -355,6 +355,7 @@ class InitializerConfig:
     max_turn_rate: float = 0.12  # rad/s; lcmap with a ctrv filter fits turns on a grid over +- this
     turn_rate_steps: int = 9  # values in that grid (odd keeps 0, the straight line)
     acceleration_prior_sd: float = 0.01  # m/s^2; lcmap with a ca filter fits the acceleration under this prior
+    search_spacing: float = 2.5  # m; phasor filter: the lattice of the phasor search from the prior (0 = none)
 
     def __post_init__(self) -> None:
         require_choice(self.name, INITIALIZERS, "initializer.name")
@@ -373,6 +374,11 @@ class InitializerConfig:
         require(self.covariance_inflation >= 1, "initializer.covariance_inflation", "must be >= 1")
         _positive(self.max_turn_rate, "initializer.max_turn_rate")
         _positive(self.acceleration_prior_sd, "initializer.acceleration_prior_sd")
+        require(
+            self.search_spacing == 0 or 0.5 <= self.search_spacing < math.inf,
+            "initializer.search_spacing",
+            f"must be 0 (no search) or a finite spacing >= 0.5 m, got {self.search_spacing!r}",
+        )
         require(
             isinstance(self.turn_rate_steps, int) and self.turn_rate_steps >= 1,
             "initializer.turn_rate_steps",

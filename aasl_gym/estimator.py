@@ -37,6 +37,14 @@ fresh one next to a running filter on its sheet yields to it), and with ``filter
 ``initializer.hypotheses`` are refined by the sliding-window MAP (:mod:`aasl_gym.window`; under the
 phasor model a second fit resolves the ripple, kept only where it explains the window).
 
+The phasor search. Under reflections LC-MAP's coarse candidates land metres from a moving source,
+outside the basin of the phasor model's window fit. Once an episode, at the first re-seed whose
+window holds ``search.SEARCH_WINDOW`` seconds, :mod:`aasl_gym.search` fits those seconds with the
+phasor model from a lattice over where the source can be (``initializer.search_spacing``); the fits
+that explain them form a pool, which every re-seed refits beside its own fine fits (the pool's winners
+join the bank). While the growing window is short, each scheduled re-seed also searches a small
+lattice about the likeliest filter (a filter 2-4 m off can sit in a dip that explains the window).
+
 Recovery, at any time. When the likeliest filter's mean NIS over ``divergence_window`` exceeds
 ``divergence_nis`` (after ``reinit_cooldown``), the tracker re-seeds on the last ``reinit_window``
 seconds, the running filters competing with their covariances widened by ``filter.recovery_inflation``.
@@ -84,6 +92,7 @@ from aasl_gym.initializers import (
     distinct_hypotheses,
     make_initializer,
     robust_loss,
+    select_samples,
     subsample,
 )
 from aasl_gym.measurement_models import (
@@ -98,6 +107,19 @@ from aasl_gym.measurement_models import (
     tone_period,
 )
 from aasl_gym.motion import Box, receiver_region
+from aasl_gym.search import (
+    DISTINCT,
+    LOCAL_HALF_WIDTH,
+    LOCAL_POOL,
+    LOCAL_SPACING,
+    LOCAL_UNTIL,
+    SEARCH_POOL,
+    SEARCH_WINDOW,
+    distinct_best,
+    local_lattice,
+    prior_lattice,
+    search,
+)
 from aasl_gym.window import fit_window, whitened_residuals
 
 logger = logging.getLogger(__name__)
@@ -191,6 +213,12 @@ class SourceTracker:
         ini = config.initializer
         self.reseed_length = int(round(ini.reseed_until * rate)) + 1 if ini.reseed_interval > 0 else 0
         self.nis_length = max(1, int(round(f.divergence_window * rate)))
+        self.search_length = int(round(SEARCH_WINDOW * rate))
+        # The phasor search (:mod:`aasl_gym.search`), where only the phasor model sees the source: part of an
+        # LC-MAP start (the other initializers' filters meet LC-MAP only in a recovery, and stay comparable).
+        self.searches = (
+            self.ripple and ini.name == "lcmap" and ini.search_spacing > 0 and self.reseed_length > self.search_length
+        )
         # A bank that re-seeds recovers from an inconsistent filter by searching again; the paper's single
         # filter (``reseed_interval: 0``) re-starts instead.
         self.recovers = ini.reseed_interval > 0
@@ -210,6 +238,9 @@ class SourceTracker:
         self.last_sheet_check = -np.inf  # s
         self.gap = False  # frames were lost since the last measurement (see :meth:`_reanchor`)
         self.range_offset = 0.0  # m added to every measured RD: whole periods the track slipped by in gaps
+        self.searched = False  # the phasor search ran (once an episode)
+        self.pool = np.zeros((0, self.model.dim))  # its fine candidates, refitted at each scheduled re-seed
+        self.pool_time = np.nan  # s, when the pool's states are given
 
     def _sigma_measurements(
         self,
@@ -399,9 +430,63 @@ class SourceTracker:
         resolved_running = [i for i, h in enumerate(self.bank) if h.resolved and np.isfinite(chi_square[i])]
         kept += [i for i in resolved_running if i not in kept]
         resolved = [j for j, i in enumerate(kept) if i in resolved_running]
-        fits = self._fit_window(len(burst.times), states[kept], resolved)
+        pool = self._pool_at(time)
+        fits = self._fit_window(len(burst.times), states[kept], resolved, pool)
         self._bank_from_fits(fits[:limit], time)
-        return kept[fits[0][0]] >= len(running)
+        index = fits[0][0]
+        return index < 0 or kept[index] >= len(running)
+
+    def _pool_at(self, time: float) -> np.ndarray | None:
+        """The phasor search's pool (:mod:`aasl_gym.search`) carried to ``time``, for a re-seed's fine fit;
+        None where there is no search or once the pool is spent. The search from the prior runs once an
+        episode (:meth:`_search_prior`); while the growing window since the last start or jump is under
+        ``search.LOCAL_UNTIL``, a scheduled re-seed searches about the likeliest filter too."""
+        if not self.searches:
+            return None
+        if not self.searched and self.window_start <= self.first_time + 1e-9:
+            if self._window_length(time) < self.search_length:
+                return None
+            self._search_prior(time)
+        elif self.searched and self.bank and time - self.window_start <= LOCAL_UNTIL + 1e-9:
+            self._search_locally(time)
+        return self._carried_pool(time) if len(self.pool) else None
+
+    def _carried_pool(self, time: float, count: int | None = None) -> np.ndarray:
+        """The best ``count`` (all if None) of the pool run along the motion model to ``time``."""
+        return self.model.trajectory(self.pool[:count], np.array([time - self.pool_time]))[:, 0]
+
+    def _search_prior(self, time: float) -> None:
+        """The search from the prior on the first ``SEARCH_WINDOW`` seconds of the growing window the
+        episode's first start opened, latest first: the fits' states are given at its first sample, where the
+        source is within ``source.initial_radius`` of the origin but for ``initializer.max_source_speed``
+        since the episode began (a lattice a third the size of one at the window's end)."""
+        self.searched = True
+        window = self._burst(self._window_length(time), fine=True)
+        first = select_samples(window, slice(self.search_length - 1, None, -1))
+        start = first.times[-1]
+        ini = self.config.initializer
+        radius = self.config.source.initial_radius + ini.max_source_speed * start
+        reach = Box(radius, self.region.z_min, self.region.z_max)
+        lattice = prior_lattice(reach, ini.search_spacing)
+        starts = np.zeros((len(lattice), self.model.dim))
+        starts[:, 0:3], starts[:, -2] = lattice, self.range_offset
+        self.pool = search(first, self.model, starts, self._window_prior, RIPPLE_GATE * first.measurements.size)
+        self.pool_time = start
+        logger.debug("t = %.1f s: the phasor search keeps %d candidates", time, len(self.pool))
+
+    def _search_locally(self, time: float) -> None:
+        """The phasor search about the likeliest filter on the last ``SEARCH_WINDOW`` seconds; at most
+        ``LOCAL_POOL`` of its finds join the pool. A filter 2-4 m off the source can sit in a dip that explains
+        the growing window; the truth's own dip is then within reach of a short window's fit."""
+        x = self.ukf.x
+        lattice = local_lattice(x[0:3], LOCAL_HALF_WIDTH, LOCAL_SPACING)
+        starts = np.repeat(x[None], len(lattice), axis=0)
+        starts[:, 0:3] = lattice
+        burst = self._burst(min(self.search_length, len(self.history)), fine=True)
+        found = search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
+        found = found[:LOCAL_POOL]
+        carried = self._carried_pool(time, SEARCH_POOL - len(found)) if len(self.pool) else found[:0]
+        self.pool, self.pool_time = np.concatenate([carried, found]), time
 
     @property
     def _sheets_checkable(self) -> bool:
@@ -468,7 +553,11 @@ class SourceTracker:
         return duplicate
 
     def _fit_window(
-        self, length: int, states: np.ndarray, resolved_starts: Sequence[int] | np.ndarray | None = None
+        self,
+        length: int,
+        states: np.ndarray,
+        resolved_starts: Sequence[int] | np.ndarray | None = None,
+        pool: np.ndarray | None = None,
     ) -> list[tuple[int, np.ndarray, np.ndarray, float, bool]]:
         """The sliding-window MAP (:func:`aasl_gym.window.fit_window`) of the last ``length`` samples
         from each of ``states`` (H, n): (start index, state, covariance, log weight, resolved), best first.
@@ -480,6 +569,8 @@ class SourceTracker:
         ``resolved_starts`` (indices into ``states``: filters that resolved the ripple) also go to the
         fine fit as they are: the coarse fit is biased by the ripple it ignores (metres near the
         surface), and from there the fine fit can settle in a wrong dip that beats a right filter.
+        So do the phasor search's ``pool`` (P, n) at the window's end (start index -1): those that pass
+        become the pool (:meth:`_pool_at`), and those not within ``search.DISTINCT`` of a better fit compete.
         """
         ini = self.config.initializer
         prior_mean, prior_sd = self._window_prior(states)
@@ -492,16 +583,22 @@ class SourceTracker:
             return coarse
         burst = subsample(self._burst(length, fine=True), RIPPLE_SAMPLES)
         direct = np.array([], dtype=int) if resolved_starts is None else np.asarray(resolved_starts, dtype=int)
-        top = np.concatenate([order[:RIPPLE_FITS], direct])
-        starts = np.concatenate([fit.states[order[:RIPPLE_FITS]], states[direct]])
-        fine = fit_window(burst, self.model, starts, prior_mean[top], prior_sd, robust=True)
+        pool = np.zeros((0, self.model.dim)) if pool is None else pool
+        top = np.concatenate([order[:RIPPLE_FITS], direct, np.full(len(pool), -1)])
+        starts = np.concatenate([fit.states[order[:RIPPLE_FITS]], states[direct], pool])
+        starts_prior = np.concatenate([prior_mean[top[top >= 0]], self._window_prior(pool)[0]])
+        fine = fit_window(burst, self.model, starts, starts_prior, prior_sd, robust=True)
         passed = np.flatnonzero(fine.costs <= RIPPLE_GATE * burst.measurements.size)
+        if len(pool):
+            from_pool = passed[top[passed] < 0]
+            best = distinct_best(fine.states[from_pool], fine.costs[from_pool], SEARCH_POOL)
+            self.pool = fine.states[from_pool[best]]
+            self.pool_time = burst.times[-1]
         if passed.size == 0:
             return coarse
         fine_covariances = _covariances(fine.information, ini.covariance_inflation)
         passed = passed[np.argsort(fine.costs[passed], kind="stable")]
-        passed = passed[np.unique(top[passed], return_index=True)[1]]  # the better fine fit of a start
-        passed = passed[np.argsort(fine.costs[passed], kind="stable")]
+        passed = self._distinct_fine(passed, top, fine.states)
         best_cost = fine.costs[passed[0]]
         resolved = [
             (top[i], fine.states[i], fine_covariances[i], -0.5 * (fine.costs[i] - best_cost), True) for i in passed
@@ -509,6 +606,20 @@ class SourceTracker:
         # The coarse fits that were not resolved follow, half the pruning ratio behind the resolved ones.
         behind = -0.5 * self.config.filter.prune_log_ratio
         return resolved + [(i, x, p, w + behind, False) for i, x, p, w, _ in coarse if i not in top[passed]]
+
+    @staticmethod
+    def _distinct_fine(passed: np.ndarray, top: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """Of the fine fits ``passed`` (best first), the better of each start's (``top``: its index) and,
+        of the pool's (index -1), those not within ``search.DISTINCT`` of a better fit."""
+        kept: list[int] = []
+        for i in passed:
+            if top[i] >= 0:
+                duplicate = any(top[j] == top[i] for j in kept)
+            else:
+                duplicate = any(np.linalg.norm(states[i, 0:3] - states[j, 0:3]) <= DISTINCT for j in kept)
+            if not duplicate:
+                kept.append(int(i))
+        return np.array(kept, dtype=int)
 
     def _bank_from_fits(self, fits: list[tuple[int, np.ndarray, np.ndarray, float, bool]], time: float) -> None:
         """The bank becomes one fresh filter per window fit (:meth:`_fit_window`), started at ``time``."""

@@ -269,14 +269,13 @@ def subsample(burst: Burst, samples: int) -> Burst:
     count = len(burst.times)
     if count <= samples:
         return burst
-    index = np.round(np.linspace(count - 1, 0, samples))[::-1].astype(int)
-    return replace(
-        burst,
-        **{
-            name: getattr(burst, name)[index]
-            for name in ("times", "measurements", "receiver_positions", "receiver_velocities")
-        },
-    )
+    return select_samples(burst, np.round(np.linspace(count - 1, 0, samples))[::-1].astype(int))
+
+
+def select_samples(burst: Burst, index: np.ndarray | slice) -> Burst:
+    """The burst's samples at ``index`` (an index array or a slice), with its noise and model."""
+    per_sample = ("times", "measurements", "receiver_positions", "receiver_velocities")
+    return replace(burst, **{name: getattr(burst, name)[index] for name in per_sample})
 
 
 def periodic_residual(residual: np.ndarray, burst: Burst) -> np.ndarray:

@@ -63,6 +63,8 @@ def test_default_yaml_is_the_default():
         ({"fault": {"duration": float("nan")}}, r"fault\.duration: must be a finite number >= 0"),
         ({"signal": {"detection_snr_db": float("inf")}}, r"signal\.detection_snr_db: must be finite"),
         ({"filter": {"sheet_check_interval": -1}}, r"filter\.sheet_check_interval: must be a finite number >= 0"),
+        ({"initializer": {"search_spacing": 0.1}}, r"initializer\.search_spacing: must be 0 \(no search\) or a finite"),
+        ({"initializer": {"search_spacing": -2}}, r"initializer\.search_spacing: must be 0 \(no search\)"),
         ({"world": {"noise_level_db": float("nan")}}, r"world\.noise_level_db: must be finite, got nan"),
         ({"reward": {"success_bonus": float("inf")}}, r"reward\.success_bonus: must be finite"),
         ({"receiver": {"start_position": [15.0, float("nan"), -7.0]}}, r"receiver\.start_position: must be finite"),

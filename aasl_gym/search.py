@@ -1,0 +1,82 @@
+"""The phasor search: a start for the reflecting world from the prior alone, grown window by window.
+
+Under reflections the tracker's filters and window fits carry the phasor model, whose apparent RD and
+RRD ripple on the scale of a wavelength as the source moves. LC-MAP and the coarse window fits weigh
+candidates with the direct path and the ripple as noise; that model's errors are broad (RD 0.16 /
+0.36 / 0.52 m, RRD 0.12 / 0.35 / 1.96 m/s at 50 / 90 / 99 %, tuning seeds), and its candidates land
+4-62 m from a moving source, far outside the basin of a fine (phasor) fit of a long window (about
+1 m and 0.05 m/s on 30 s). A fine fit of a *short* window has a wider basin, and a fit that explains
+it carried on to longer windows stays near the truth (``benchmarks/fine_search.py``).
+
+So, once per episode, :func:`search_prior` lays a lattice over where the source can be at the end
+of the first ``SEARCH_WINDOW`` seconds (the start ball of ``source.initial_radius``, grown by
+``initializer.max_source_speed``, within the water column), solves each point's velocity with its
+position held, keeps the best ``SEARCH_SCREEN`` of them, frees the position and returns the fits that
+explain the window. The tracker keeps them as a pool that each scheduled re-seed refits on its growing
+window (:meth:`aasl_gym.estimator.SourceTracker._fit_window`): a wrong dip that explained 5 s rarely
+explains 20.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aasl_gym.filters import MotionModel
+from aasl_gym.initializers import Burst
+from aasl_gym.motion import Box
+from aasl_gym.window import fit_window
+
+SEARCH_WINDOW = 5.0  # s: the first window searched (on 3 s more dips pass, on 10 s the basins narrow)
+SEARCH_SCREEN = 0.1  # share of the lattice kept after the velocity solve (the truth's cell ranked in the top 3 %)
+LOCAL_HALF_WIDTH = 3.0  # m: the local search's cube about the likeliest filter
+LOCAL_SPACING = 1.5  # m: its lattice
+LOCAL_UNTIL = 30.0  # s of growing window after which no local search runs
+LOCAL_POOL = 16  # of its finds, at most this many join the pool (which keeps at most SEARCH_POOL)
+SEARCH_POOL = 64  # candidates the pool keeps between re-seeds, best first
+HELD_POSITION_SD = 0.5  # m: the position prior of the velocity solve, about the lattice point
+SOLVE_ITERATIONS = 4  # Levenberg-Marquardt iterations of that solve
+DISTINCT = 0.3  # m: fits closer than this are one candidate
+
+
+def prior_lattice(region: Box, spacing: float) -> np.ndarray:
+    """Points (N, 3) of a cubic lattice of ``spacing`` (m) inside ``region``'s ball of radius
+    ``region.radius`` about the origin, between its depth bounds; the top layer at ``z_max``."""
+    axis = np.arange(-region.radius, region.radius + 1e-9, spacing)
+    depths = np.arange(region.z_max, region.z_min - 1e-9, -spacing)
+    points = np.stack(np.meshgrid(axis, axis, depths, indexing="ij"), -1).reshape(-1, 3)
+    return points[np.linalg.norm(points, axis=1) <= region.radius]
+
+
+def local_lattice(centre: np.ndarray, half_width: float, spacing: float) -> np.ndarray:
+    """Points (N, 3) of a cubic lattice of ``spacing`` (m) filling the cube of ``half_width`` about ``centre``."""
+    axis = np.arange(-half_width, half_width + 1e-9, spacing)
+    return centre + np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+
+
+def distinct_best(states: np.ndarray, costs: np.ndarray, limit: int) -> np.ndarray:
+    """Indices of at most ``limit`` of ``states`` (C, n), best cost first, none within ``DISTINCT`` of a better one."""
+    kept: list[int] = []
+    for i in np.argsort(costs, kind="stable"):
+        if all(np.linalg.norm(states[i, 0:3] - states[j, 0:3]) > DISTINCT for j in kept):
+            kept.append(int(i))
+            if len(kept) == limit:
+                break
+    return np.array(kept, dtype=int)
+
+
+def search(burst: Burst, model: MotionModel, starts: np.ndarray, window_prior, gate: float) -> np.ndarray:
+    """Fine candidates (C, n) at the burst's last sample that explain it (robust cost at most
+    ``gate``), best first, at most ``SEARCH_POOL``, from ``starts`` (S, n) there; ``burst`` carries the
+    filter's own (phasor) model and ``window_prior(states)`` gives the window fits' prior (mean (C, n),
+    sd (n,)). Each start's velocity is solved first with its position held (``HELD_POSITION_SD``); the best
+    ``SEARCH_SCREEN`` of those are then fitted freely."""
+    prior_mean, prior_sd = window_prior(starts)
+    prior_mean[:, 0:3], held_sd = starts[:, 0:3], prior_sd.copy()
+    held_sd[0:3] = HELD_POSITION_SD
+    solved = fit_window(burst, model, starts, prior_mean, held_sd, robust=True, iterations=SOLVE_ITERATIONS)
+    screened = np.argsort(solved.costs, kind="stable")[: max(1, int(round(SEARCH_SCREEN * len(starts))))]
+    states = solved.states[screened]
+    free_mean, free_sd = window_prior(states)
+    fit = fit_window(burst, model, states, free_mean, free_sd, robust=True)
+    passed = np.flatnonzero(fit.costs <= gate)
+    return fit.states[passed[distinct_best(fit.states[passed], fit.costs[passed], SEARCH_POOL)]]
