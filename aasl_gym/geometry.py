@@ -206,26 +206,16 @@ def phasor_range_difference(
     """The apparent RD (m) of :func:`phasor_multipath` alone, to the last bit, without the rates: what a
     frame's RD track is made of (its slope is the frame's RRD), at about two thirds of the cost."""
     gains = (surface_reflection, bed_reflection)
-    (factor_m, range_m, _, _), (factor_f, range_f, _, _) = _stationary_factors(
-        source, (mobile, fixed), water_depth, gains, wavenumber
+    return _apparent_range_difference(
+        _stationary_factors(source, (mobile, fixed), water_depth, gains, wavenumber), wavenumber
     )
+
+
+def _apparent_range_difference(factors: list, wavenumber: float) -> np.ndarray:
+    """RD_app = (d_m - d_f) + (phi_f - phi_m) / k from the mobile's and the fixed hydrophone's
+    :func:`_multipath_factor` results."""
+    (factor_m, range_m, _, _), (factor_f, range_f, _, _) = factors
     return (range_m - range_f) + (np.angle(factor_f) - np.angle(factor_m)) / wavenumber
-
-
-def phasor_range_difference_gradients(
-    source: np.ndarray,
-    mobile: np.ndarray,
-    fixed: np.ndarray,
-    water_depth: float,
-    surface_reflection: float,
-    bed_reflection: float,
-    wavenumber: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Gradients (..., 3) of :func:`phasor_range_difference` with respect to the source position and the
-    mobile hydrophone's position (dimensionless), in closed form (:func:`phasor_range_difference_linearized`)."""
-    return phasor_range_difference_linearized(
-        source, mobile, fixed, water_depth, surface_reflection, bed_reflection, wavenumber
-    )[1:]
 
 
 def phasor_range_difference_linearized(
@@ -262,8 +252,7 @@ def phasor_range_difference_linearized(
             if phase_receiver is not None:
                 phase_receiver += sine * (along_image - along_direct) - wavenumber * cosine * (unit - image_unit)
         gradients.append((unit, phase_source, phase_receiver))
-    (factor_m, range_m, _, _), (factor_f, range_f, _, _) = factors
-    range_difference = (range_m - range_f) + (np.angle(factor_f) - np.angle(factor_m)) / wavenumber
+    range_difference = _apparent_range_difference(factors, wavenumber)
     (unit_m, source_m, receiver_m), (unit_f, source_f, _) = gradients
     source_gradient = (unit_m - unit_f) + (source_f - source_m) / wavenumber
     assert receiver_m is not None  # the mobile receiver's, computed above

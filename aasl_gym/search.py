@@ -8,13 +8,15 @@ candidates with the direct path and the ripple as noise; that model's errors are
 1 m and 0.05 m/s on 30 s). A fine fit of a *short* window has a wider basin, and a fit that explains
 it carried on to longer windows stays near the truth (``benchmarks/fine_search.py``).
 
-So, once per episode, :func:`search_prior` lays a lattice over where the source can be at the end
-of the first ``SEARCH_WINDOW`` seconds (the start ball of ``source.initial_radius``, grown by
-``initializer.max_source_speed``, within the water column), solves each point's velocity with its
-position held, keeps the best ``SEARCH_SCREEN`` of them, frees the position and returns the fits that
-explain the window. The tracker keeps them as a pool that each scheduled re-seed refits on its growing
-window (:meth:`aasl_gym.estimator.SourceTracker._fit_window`): a wrong dip that explained 5 s rarely
-explains 20.
+So :func:`search` fits a short window with the phasor model from a lattice of starts: each start's
+velocity is solved with its position held, the best ``SEARCH_SCREEN`` of them are fitted freely, and
+the fits that explain the window (the fine gate) are returned, at most ``SEARCH_POOL``, none within
+``DISTINCT`` of a better one. The tracker (:class:`aasl_gym.estimator.SourceTracker`) runs it once an
+episode on the first ``SEARCH_WINDOW`` seconds from :func:`prior_lattice` - the ball of
+``source.initial_radius`` grown by ``initializer.max_source_speed``, within the water column - and,
+while its growing window is under ``LOCAL_UNTIL``, on the last seconds from :func:`local_lattice`
+about its likeliest filter. It keeps the finds as a pool that each re-seed refits on its window: a
+wrong dip that explained 5 s rarely explains 20.
 """
 
 from __future__ import annotations
