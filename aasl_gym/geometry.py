@@ -242,20 +242,19 @@ def phasor_range_difference_linearized(
     gradients = []
     for (factor, direct, unit, terms), mobile_receiver in zip(factors, (True, False)):
         phase_source = np.zeros(np.shape(unit))
-        phase_receiver = np.zeros(np.shape(unit)) if mobile_receiver else None  # the fixed one does not move
+        phase_receiver = np.zeros(np.shape(unit))  # stays zero for the fixed one, which does not move
         for term, image_range, image_unit in terms:
             weight = term / factor
             sine, cosine = weight.imag[..., None], weight.real[..., None]
             along_direct, along_image = unit / direct[..., None], image_unit / image_range[..., None]
             mirrored, mirrored_along = mirror * image_unit, mirror * along_image
             phase_source += sine * (along_direct - mirrored_along) - wavenumber * cosine * (mirrored - unit)
-            if phase_receiver is not None:
+            if mobile_receiver:
                 phase_receiver += sine * (along_image - along_direct) - wavenumber * cosine * (unit - image_unit)
         gradients.append((unit, phase_source, phase_receiver))
     range_difference = _apparent_range_difference(factors, wavenumber)
     (unit_m, source_m, receiver_m), (unit_f, source_f, _) = gradients
     source_gradient = (unit_m - unit_f) + (source_f - source_m) / wavenumber
-    assert receiver_m is not None  # the mobile receiver's, computed above
     mobile_gradient = -unit_m - receiver_m / wavenumber
     return range_difference, source_gradient, mobile_gradient
 

@@ -85,7 +85,12 @@ def whitened_residuals(
     R_eff whitener unless given."""
     trajectory = _trajectory(burst, model, states)
     white = _whiteners(burst, trajectory) if white is None else white
-    return whiten(white, periodic_residual(burst.measurements[None] - _predictions(burst, trajectory), burst))
+    return _whitened(burst, white, _predictions(burst, trajectory))
+
+
+def _whitened(burst: Burst, white: np.ndarray, predictions: np.ndarray) -> np.ndarray:
+    """W_k (z_k - prediction_k) (C, K, 2) for predictions (C, K, 2) with their biases, RD as the burst says."""
+    return whiten(white, periodic_residual(burst.measurements[None] - predictions, burst))
 
 
 def _evaluate(burst: Burst, model: MotionModel, states: np.ndarray):
@@ -104,8 +109,7 @@ def _evaluate(burst: Burst, model: MotionModel, states: np.ndarray):
         )
         white = inverse_cholesky(burst.noise_covariance + receiver_noise(receiver, *burst.navigation_sd))
         predictions = values + trajectory[..., -2:]
-    residual = whiten(white, periodic_residual(burst.measurements[None] - predictions, burst))
-    return white, residual.reshape(len(states), -1), local
+    return white, _whitened(burst, white, predictions).reshape(len(states), -1), local
 
 
 def _jacobian(burst, model, states, white, local=None) -> np.ndarray:
