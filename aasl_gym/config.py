@@ -303,6 +303,8 @@ class FilterConfig:
     window_fit: bool = True  # re-seeds refine their best hypotheses by a sliding-window MAP (aasl_gym.window)
     # s: after the growing window, test the neighbouring whole-period sheets (0: never)
     sheet_check_interval: float = 10.0
+    # each sheet check fits the likeliest filter's whole track since its start and the filter adopts the fit
+    track_fit: bool = True
     frame_samples: int = 3  # signal mode, phasor model: times per frame the model is averaged over (1: the centre)
 
     def __post_init__(self) -> None:
@@ -325,6 +327,7 @@ class FilterConfig:
             isinstance(self.window_fit, bool), "filter.window_fit", f"must be true or false, got {self.window_fit!r}"
         )
         _non_negative(self.sheet_check_interval, "filter.sheet_check_interval")
+        require(isinstance(self.track_fit, bool), "filter.track_fit", f"must be true or false, got {self.track_fit!r}")
         require(
             isinstance(self.frame_samples, int) and self.frame_samples >= 1,
             "filter.frame_samples",

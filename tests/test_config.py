@@ -63,6 +63,7 @@ def test_default_yaml_is_the_default():
         ({"fault": {"duration": float("nan")}}, r"fault\.duration: must be a finite number >= 0"),
         ({"signal": {"detection_snr_db": float("inf")}}, r"signal\.detection_snr_db: must be finite"),
         ({"filter": {"sheet_check_interval": -1}}, r"filter\.sheet_check_interval: must be a finite number >= 0"),
+        ({"filter": {"track_fit": "yes"}}, r"filter\.track_fit: must be true or false, got 'yes'"),
         ({"initializer": {"search_spacing": 0.1}}, r"initializer\.search_spacing: must be 0 \(no search\) or a finite"),
         ({"initializer": {"search_spacing": -2}}, r"initializer\.search_spacing: must be 0 \(no search\)"),
         ({"world": {"noise_level_db": float("nan")}}, r"world\.noise_level_db: must be finite, got nan"),

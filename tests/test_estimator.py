@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.optimize import least_squares
 
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
@@ -157,12 +158,66 @@ def _neighbouring_sheet(info: dict, wavelength: float) -> np.ndarray:
     return q
 
 
+def _whole_track_least_squares(tracker, start: np.ndarray) -> np.ndarray:
+    """The CV state [p, v, b_p, b_v] at the last kept measurement that best explains every measurement
+    of the track since ``tracker.window_start`` under the direct path and a constant R, with the window
+    fits' priors (velocity, the two biases about ``start``'s): SciPy's trust-region solver on RD and RRD
+    written out here, not the tracker's model, motion model or solver."""
+    rows = [row for row in tracker.history if row[0] >= tracker.window_start - 1e-9]
+    times, z, mobile, mobile_velocity = (np.array(column) for column in list(zip(*rows))[:4])
+    sd = np.sqrt(np.diag(rows[-1][4]))
+    ini = tracker.config.initializer
+
+    def residuals(theta):
+        p = theta[0:3] + np.outer(times - times[-1], theta[3:6])
+        to_mobile, to_fixed = p - mobile, p - tracker.fixed
+        r_mobile, r_fixed = np.linalg.norm(to_mobile, axis=1), np.linalg.norm(to_fixed, axis=1)
+        rd = r_mobile - r_fixed + theta[6]
+        rrd = np.sum(to_mobile * (theta[3:6] - mobile_velocity), 1) / r_mobile
+        rrd += -to_fixed @ theta[3:6] / r_fixed + theta[7]
+        velocity_prior = theta[3:6] / ini.velocity_prior_sd
+        bias_prior = [(theta[6] - start[6]) / ini.range_bias_sd, theta[7] / ini.rate_bias_sd]
+        return np.concatenate([(z[:, 0] - rd) / sd[0], (z[:, 1] - rrd) / sd[1], velocity_prior, bias_prior])
+
+    return least_squares(residuals, start, x_scale="jac", xtol=1e-12, ftol=1e-12).x
+
+
+def test_a_sheet_check_adopts_the_whole_track_fit():
+    """``filter.track_fit``: at a sheet check after the growing window the likeliest filter becomes the
+    least-squares fit of its whole track since its start (the world's motions are deterministic, so
+    that fit is the efficient estimate, where the filter's process noise forgets the early data),
+    checked against an independent solution of that problem; without ``track_fit`` the check leaves the
+    filter where it was (it only looks at the neighbouring sheets, on the last 60 s)."""
+    config = STUDY.replace(
+        measurement={"mode": "geometric"}, source={"motion": "cv"}, receiver={"nav_position_sd": 0.0}
+    )
+    for track_fit in (True, False):
+        env = AASLEnv(config.replace(filter={"track_fit": track_fit}), patrol="helix")
+        env.reset(seed=1)
+        start_velocity = env.source.velocity.copy()
+        for _ in range(500):
+            _, _, _, _, info = env.step(np.zeros(3))
+        assert np.array_equal(env.source.velocity, start_velocity)  # no bounce: the track is one straight line
+        tracker = env.tracker
+        before = tracker.ukf.x.copy()
+        assert not tracker._check_sheets(info["time"])  # the filter is on the right sheet
+        after = tracker.ukf.x
+        if track_fit:
+            assert len(tracker.history) == 500  # the whole episode so far is kept
+            solution = _whole_track_least_squares(tracker, before)
+            assert np.linalg.norm(after[0:3] - solution[0:3]) < 1e-4
+            assert np.linalg.norm(after[3:6] - solution[3:6]) < 1e-6
+            assert np.linalg.norm(after[0:3] - before[0:3]) > 1e-2  # the fit moved the filter
+        else:
+            assert np.array_equal(after, before)
+
+
 def test_the_tracker_leaves_a_wrong_whole_period_sheet():
     """At 72 s the bank is replaced by one confident filter on the neighbouring sheet: a position 1-3 m
     away whose RD, with b_p one wavelength lower, predicts this step's measurement exactly. Its
     innovations stay consistent for a while, so no recovery starts; the sheet check (every
     ``filter.sheet_check_interval``, 10 s, and first thing in a recovery), which refits it and its
-    neighbours on the last 60 s, brings the tracker back below 1 m within 15 s, there to stay (tuning
+    neighbours on the track since its start, brings the tracker back below 1 m within 15 s, there to stay (tuning
     seeds 0-5: 6.4 s on five, 12.6 s on one; without the check one of six came back, after 35 s)."""
     env = AASLEnv(STUDY, patrol="helix")
     wavelength = env.config.wavelength
@@ -228,3 +283,18 @@ def test_the_phasor_search_finds_a_moving_source_the_coarse_stage_misses():
 
     assert np.all(errors(2.5)[50:] < 1.0)
     assert np.median(errors(0.0)[50:]) > 3.0
+
+
+def test_the_phasor_track_refit_folds_a_bounce_at_the_surface_margin():
+    """The default world, a CV source that bounces off the surface margin at 65.8 s (tuning seed 20013).
+    After the growing window the likeliest filter adopts its whole track's phasor fit every 10 s; that
+    fit folds the trajectory at the water column's bounds as the source does, so the estimate stays
+    within 0.3 m from 70 s to the end. A fit that ran straight through the surface would pull the
+    filter further off at every refit (1.4, 2.1, 3.0, 4.0 m: the track was lost by 112 s)."""
+    env = AASLEnv(EnvConfig(), patrol="helix")
+    env.reset(seed=20013)
+    velocity = env.source.velocity.copy()
+    errors = np.array([env.step(np.zeros(3))[4]["position_error"] for _ in range(600)])
+    assert velocity[2] > 0 > env.source.velocity[2]  # it rose, and bounced
+    assert env.tracker.last_track_fit is not None  # the refit ran and was adopted
+    assert np.all(errors[350:] < 0.3)
