@@ -450,7 +450,7 @@ class SourceTracker:
         fits = self._fit_window(len(burst.times), states[kept], resolved, pool)
         self._bank_from_fits(fits[:limit], time)
         if length is None and burst.times[0] <= self.window_start + 1e-9:  # the window holds the whole track
-            self.last_track_fit = (fits[0][1].copy(), time, self.window_start)
+            self._remember_track_fit(fits[0][1], time)
         index = fits[0][0]
         return index < 0 or kept[index] >= len(running)
 
@@ -533,6 +533,15 @@ class SourceTracker:
         self._refit_track(time)
         return False
 
+    def _remember_track_fit(self, state: np.ndarray, time: float) -> None:
+        """Keep ``state``, a fit of this track's whole window given at ``time``, for :meth:`_carried_track_fit`."""
+        self.last_track_fit = (state.copy(), time, self.window_start)
+
+    def _adopt_track_fit(self, ukf: UnscentedKalmanFilter, state: np.ndarray, covariance: np.ndarray, time: float):
+        """The filter ``ukf`` restarts at a fit of its whole track (given at ``time``), which is remembered."""
+        ukf.initialize(state, covariance)
+        self._remember_track_fit(state, time)
+
     def _carried_track_fit(self, time: float) -> np.ndarray:
         """The last fit of this track's whole window - a re-seed's best on the growing window, or an adopted
         track fit - carried along the motion model to ``time``: (1, n), or (0, n) if there is none."""
@@ -559,8 +568,7 @@ class SourceTracker:
         if fit.costs[best] > RIPPLE_GATE * burst.measurements.size:
             return
         covariance = _covariances(fit.information[best : best + 1], self.config.initializer.covariance_inflation)[0]
-        hypothesis.ukf.initialize(fit.states[best], covariance)
-        self.last_track_fit = (fit.states[best].copy(), time, self.window_start)
+        self._adopt_track_fit(hypothesis.ukf, fit.states[best], covariance, time)
 
     def _sheet_neighbours(self, x: np.ndarray) -> np.ndarray:
         """``x`` moved onto the two neighbouring whole-period sheets (2, n): b_p -+ one wavelength, and the
@@ -595,12 +603,11 @@ class SourceTracker:
         states = np.concatenate([self.ukf.x[None], self._sheet_neighbours(self.ukf.x), self._carried_track_fit(time)])
         since = self.window_start if self.track_length else time - self.config.initializer.reseed_until
         fits = self._fit_window(self._samples_since(since), states)
-        # The filter's own sheet: itself and (index 3) the last adopted fit carried on.
+        # The filter's own sheet: itself and (index 3, after the two neighbours) the last whole-track fit carried on.
         running = next(fit for fit in fits if fit[0] in (0, 3))
         if running[3] > -self.config.filter.prune_log_ratio:
             if self.track_length:
-                self.ukf.initialize(running[1], running[2])
-                self.last_track_fit = (running[1].copy(), time, self.window_start)
+                self._adopt_track_fit(self.ukf, running[1], running[2], time)
             return False
         logger.debug("t = %.1f s: a neighbouring whole-period sheet explains the window better; switching", time)
         self._bank_from_fits(fits[: self.config.initializer.hypotheses], time)
