@@ -205,7 +205,9 @@ class SignalConfig:
     frame_duration: float = 0.2  # s, centred on the step's time
     guard: float = 0.02  # s synthesized at each end of a frame and dropped after filtering
     sample_rate: float = 200_000.0  # Hz, hardware path
-    envelope_rate: float = 10_000.0  # Hz, the fast path's rate and the rate both paths estimate at
+    # Hz, the fast path's rate and the rate both paths estimate at: the band (a tone's +-10 %, a sweep's 1 kHz) and
+    # the filter's skirts fit with room (noise-free frames measure as at 10 kHz: tone RD, RRD within 0.1 mm, mm/s)
+    envelope_rate: float = 4_000.0
     windows: int = 10  # short windows per frame for the delay track (TDOA mean, FDOA slope)
     sd_inflation: float = 1.5  # the filter's R uses the Cramer-Rao sd from the frame's SNRs times this
     min_range_difference_sd: float = 0.002  # m, floor of the filter's RD sd
@@ -355,6 +357,9 @@ class InitializerConfig:
     hypotheses: int = 12  # lcmap: distinct candidates (best of each sheet first) that each start a UKF; 1 = one filter
     reseed_interval: float = 5.0  # s; after an lcmap start, lcmap re-runs on the growing window this often (0 = never)
     reseed_until: float = 60.0  # s, longest such window; no scheduled re-seed after it
+    # A scheduled re-seed runs LC-MAP afresh only if no running filter explains its window: a window cost
+    # above this quantile of its chi-square distribution (0 = LC-MAP at every re-seed).
+    reseed_search_quantile: float = 0.99
     max_turn_rate: float = 0.12  # rad/s; lcmap with a ctrv filter fits turns on a grid over +- this
     turn_rate_steps: int = 9  # values in that grid (odd keeps 0, the straight line)
     acceleration_prior_sd: float = 0.01  # m/s^2; lcmap with a ca filter fits the acceleration under this prior
@@ -367,6 +372,11 @@ class InitializerConfig:
         require(math.isfinite(self.information_weight), "initializer.information_weight", "must be finite")
         _non_negative(self.reseed_interval, "initializer.reseed_interval")
         _non_negative(self.reseed_until, "initializer.reseed_until")
+        require(
+            0 <= self.reseed_search_quantile < 1,
+            "initializer.reseed_search_quantile",
+            f"must be in [0, 1), got {self.reseed_search_quantile!r}",
+        )
         require(
             isinstance(self.hypotheses, int) and self.hypotheses >= 1,
             "initializer.hypotheses",

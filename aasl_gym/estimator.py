@@ -29,11 +29,12 @@ In signal mode the phasor model is the frame's mean and least-squares slope of t
 interference null they differ from the frame centre's value by many sd.
 
 Re-seeding. Two seconds seldom show *where* on its sheet the source is, so after an LC-MAP start
-LC-MAP re-runs every ``initializer.reseed_interval`` on the growing window, up to ``reseed_until``,
-fitting the filter's motion model (straight, turning or accelerating; see :mod:`aasl_gym.initializers`),
-even when a filter already looks confident (a confident filter can sit on a wrong, self-consistent
-solution). Its fresh hypotheses and the running filters are weighed on that window's chi-square (a
-fresh one next to a running filter on its sheet yields to it), and with ``filter.window_fit`` the best
+the bank is re-seeded every ``initializer.reseed_interval`` on the growing window, up to ``reseed_until``:
+the running filters are refitted on it, and LC-MAP runs on it afresh, fitting the filter's motion model
+(straight, turning or accelerating; see :mod:`aasl_gym.initializers`), unless a running filter explains
+the window (its chi-square below ``reseed_search_quantile``; the fresh search is most of a re-seed's
+cost and seldom beats such a filter). Fresh hypotheses and running filters are weighed on that window's
+chi-square (a fresh one next to a running filter on its sheet yields to it), and with ``filter.window_fit`` the best
 ``initializer.hypotheses`` are refined by the sliding-window MAP (:mod:`aasl_gym.window`; under the
 phasor model a second fit resolves the ripple, kept only where it explains the window).
 
@@ -86,6 +87,7 @@ from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
+from scipy import stats
 
 from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
@@ -133,6 +135,9 @@ EXTRA_STATE_SD = {"cv": 0.0, "ca": 0.02, "ctrv": 0.1}  # initial sd of accelerat
 RIPPLE_SAMPLES = 120  # a fine (phasor) window fit uses at most this many samples, evenly spaced
 RIPPLE_FITS = 4  # window fits that go on to the phasor model's ripple (the best of the coarse fits)
 RIPPLE_NIS_CAP = 2.5  # x filter.divergence_nis: the most one frame adds to that test's mean under the phasor model
+# s: a scheduled re-seed's window shorter than this always gets LC-MAP's fresh search (a short window is explained
+# by many wrong states; without it the free field's sources converged 2-3 s later on tuning seeds, session 13).
+FRESH_SEARCH_UNTIL = 10.0
 RIPPLE_GATE = 3.0  # robust cost per residual a fine window fit may have (at the truth ~1.5, in a wrong dip ~9)
 
 
@@ -421,14 +426,16 @@ class SourceTracker:
         """
         self.last_reseed = time
         burst = self._burst(min(length or self._window_length(time), len(self.history)))
-        fresh = self._lcmap_at(time)(burst, rng)
         running = [(h.ukf.x, h.ukf.P * inflation) for h in self.bank]
-        candidates: list[tuple[np.ndarray, np.ndarray]] = running + [
-            self._embed(fresh, i) for i in range(len(fresh.states))
-        ]
+        chi_square = self._window_chi_square(burst, np.array([x for x, _ in running]))
+        candidates: list[tuple[np.ndarray, np.ndarray]] = running
+        if length is not None or not self._explained(burst, chi_square):
+            fresh = self._lcmap_at(time)(burst, rng)
+            candidates = running + [self._embed(fresh, i) for i in range(len(fresh.states))]
+            fresh_states = np.array([x for x, _ in candidates[len(running) :]])
+            chi_square = np.concatenate([chi_square, self._window_chi_square(burst, fresh_states)])
         states = np.array([x for x, _ in candidates])
         base = states[:, self.model.base_index]
-        chi_square = self._window_chi_square(burst, states)
         separation = self.reinitializer.separation
         duplicate = self._next_to_running(base, len(running)) if self.ripple else np.zeros(len(candidates), dtype=bool)
         order = [i for i in np.argsort(chi_square, kind="stable") if np.isfinite(chi_square[i]) and not duplicate[i]]
@@ -453,6 +460,21 @@ class SourceTracker:
             self._remember_track_fit(fits[0][1], time)
         index = fits[0][0]
         return index < 0 or kept[index] >= len(running)
+
+    def _explained(self, burst: Burst, chi_square: np.ndarray) -> bool:
+        """Whether a running filter explains a scheduled re-seed's window: its window cost (``chi_square``,
+        one per running filter) below the ``initializer.reseed_search_quantile`` quantile of the chi-square
+        distribution with one degree of freedom per measurement (and, under the phasor model, the likeliest
+        filter has resolved the ripple). Then LC-MAP's fresh search is skipped and the re-seed refits the
+        running filters (and the phasor search's pool) alone. Its fresh candidates seldom beat a filter that
+        explains the window; skipping them halved the free field's episode time and changed no outcome on
+        tuning seeds (session 13, ``benchmarks/tracker_check.py``). A window under ``FRESH_SEARCH_UNTIL`` is
+        never taken as explained."""
+        quantile = self.config.initializer.reseed_search_quantile
+        early = burst.times[-1] - burst.times[0] < FRESH_SEARCH_UNTIL - 1e-9
+        if quantile == 0 or early or (self.ripple and not self.bank[0].resolved):
+            return False
+        return bool(np.min(chi_square) < stats.chi2.ppf(quantile, burst.measurements.size))
 
     def _pool_at(self, time: float) -> np.ndarray | None:
         """The phasor search's pool (:mod:`aasl_gym.search`) carried to ``time``, for a re-seed's fine fit;

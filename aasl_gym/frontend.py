@@ -279,7 +279,7 @@ class FrontEnd:
     frame: float = 0.2  # s
     guard: float = 0.02  # s synthesized at each end and dropped after filtering
     sample_rate: float = 200_000.0  # Hz, hardware path
-    envelope_rate: float = 10_000.0  # Hz, fast path and the envelopes both paths estimate on
+    envelope_rate: float = 4_000.0  # Hz, fast path and the envelopes both paths estimate on
     windows: int = 10
     sound_speed: float = 1500.0  # m/s
     source_level_db: float = 140.0  # dB re 1 uPa at 1 m (RMS)

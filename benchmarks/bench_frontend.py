@@ -24,12 +24,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from aasl_gym import frontend, synthesis
+from aasl_gym.config import SignalConfig
 from bench_speed import env_step_rates  # run as a script: benchmarks/ is on sys.path
 
 FIXED = np.array([0.0, 0.0, -0.96])
 SOURCE, SOURCE_VELOCITY = np.array([8.0, -6.0, -12.0]), np.array([0.5, 0.2, 0.0])
 MOBILE, MOBILE_VELOCITY = np.array([14.0, 4.0, -8.0]), np.array([0.0, 1.0, 0.0])
 FRAME, GUARD = 0.2, 0.02
+ENVELOPE_RATE = SignalConfig().envelope_rate  # Hz, the shipped fast path's
 
 
 def median_ms(function, repeats: int, number: int = 5) -> float:
@@ -52,7 +54,7 @@ def main() -> None:
     for reflections in (False, True):
         paths = synthesis.path_sources(SOURCE, SOURCE_VELOCITY, reflections, 60.0, -0.9, 0.3)
         for label, baseband, rate in (
-            ("fast (baseband, 10 kHz)", True, 10_000.0),
+            (f"fast (baseband, {ENVELOPE_RATE / 1e3:g} kHz)", True, ENVELOPE_RATE),
             ("hardware (real, 200 kHz)", False, 200_000.0),
         ):
 
@@ -74,11 +76,13 @@ def main() -> None:
                 )
 
             channel = synthesize()
-            envelope = frontend.envelopes(channel, waveform, 10_000.0, GUARD)
+            envelope = frontend.envelopes(channel, waveform, ENVELOPE_RATE, GUARD)
             track = frontend.delay_track(envelope, waveform, 0.03, noise_level_db=80.0)
             costs = {
                 "synthesis": median_ms(synthesize, args.repeats),
-                "filtering": median_ms(lambda: frontend.envelopes(channel, waveform, 10_000.0, GUARD), args.repeats),
+                "filtering": median_ms(
+                    lambda: frontend.envelopes(channel, waveform, ENVELOPE_RATE, GUARD), args.repeats
+                ),
                 "correlation": median_ms(
                     lambda: frontend.delay_track(envelope, waveform, 0.03, noise_level_db=80.0), args.repeats
                 ),
@@ -91,7 +95,7 @@ def main() -> None:
                 # Timed in alternation, so that both see the machine in the same state; the median ratio.
                 pairs = [
                     (
-                        median_ms(lambda: frontend.envelopes(channel, waveform, 10_000.0, GUARD), 1),
+                        median_ms(lambda: frontend.envelopes(channel, waveform, ENVELOPE_RATE, GUARD), 1),
                         median_ms(lambda: [np.fft.rfft(row) for row in rows], 1),
                     )
                     for _ in range(5 * args.repeats)

@@ -66,6 +66,7 @@ def test_default_yaml_is_the_default():
         ({"filter": {"track_fit": "yes"}}, r"filter\.track_fit: must be true or false, got 'yes'"),
         ({"initializer": {"search_spacing": 0.1}}, r"initializer\.search_spacing: must be 0 \(no search\) or a finite"),
         ({"initializer": {"search_spacing": -2}}, r"initializer\.search_spacing: must be 0 \(no search\)"),
+        ({"initializer": {"reseed_search_quantile": 1.0}}, r"initializer\.reseed_search_quantile: must be in \[0, 1\)"),
         ({"world": {"noise_level_db": float("nan")}}, r"world\.noise_level_db: must be finite, got nan"),
         ({"reward": {"success_bonus": float("inf")}}, r"reward\.success_bonus: must be finite"),
         ({"receiver": {"start_position": [15.0, float("nan"), -7.0]}}, r"receiver\.start_position: must be finite"),

@@ -193,11 +193,13 @@ def test_a_sheet_check_adopts_the_whole_track_fit():
     )
     for track_fit in (True, False):
         env = AASLEnv(config.replace(filter={"track_fit": track_fit}), patrol="helix")
-        env.reset(seed=1)
+        env.reset(seed=2)
         start_velocity = env.source.velocity.copy()
         for _ in range(500):
             _, _, _, _, info = env.step(np.zeros(3))
         assert np.array_equal(env.source.velocity, start_velocity)  # no bounce: the track is one straight line
+        # ...and far from the depth bounds, where the tracker's fit folds its trajectories and SciPy's does not.
+        assert env.tracker.region.z_min + 5 < env.source.position[2] < env.tracker.region.z_max - 5
         tracker = env.tracker
         before = tracker.ukf.x.copy()
         assert not tracker._check_sheets(info["time"])  # the filter is on the right sheet
@@ -298,3 +300,32 @@ def test_the_phasor_track_refit_folds_a_bounce_at_the_surface_margin():
     assert velocity[2] > 0 > env.source.velocity[2]  # it rose, and bounced
     assert env.tracker.last_track_fit is not None  # the refit ran and was adopted
     assert np.all(errors[350:] < 0.3)
+
+
+def test_a_scheduled_reseed_searches_afresh_only_where_no_filter_explains_the_window():
+    """``initializer.reseed_search_quantile``: a converged filter explains its growing window (its cost below the
+    99 % quantile of chi-square with one degree of freedom per measurement), so a scheduled re-seed refits it
+    without running LC-MAP; the same filter moved 10 m off does not, and LC-MAP runs; with the quantile at 0, as
+    before session 13, it always runs."""
+    config = STUDY.replace(measurement={"mode": "geometric"}, source={"motion": "cv"})
+    for quantile in (0.99, 0.0):
+        env = AASLEnv(config.replace(initializer={"reseed_search_quantile": quantile}), patrol="helix")
+        env.reset(seed=2)
+        for _ in range(250):  # 50 s: the growing window is still re-seeded
+            _, _, _, _, info = env.step(np.zeros(3))
+        tracker = env.tracker
+        assert info["position_error"] < 1.0
+        calls: list[int] = []
+        lcmap_at = tracker._lcmap_at
+
+        def counted(time, lcmap_at=lcmap_at, calls=calls):
+            calls.append(time)
+            return lcmap_at(time)
+
+        tracker._lcmap_at = counted  # every re-seed's LC-MAP comes from here
+        tracker._reseed(info["time"], np.random.default_rng(0))
+        assert len(calls) == (0 if quantile else 1)
+        tracker.bank[0].ukf.x[0] += 10.0  # now nothing explains the window
+        tracker.bank = tracker.bank[:1]
+        tracker._reseed(info["time"], np.random.default_rng(0))
+        assert len(calls) == (1 if quantile else 2)

@@ -6,6 +6,7 @@ from functools import partial
 import numpy as np
 
 from aasl_gym import frontend, geometry, synthesis
+from aasl_gym.config import SignalConfig
 from aasl_gym.measurement_models import (
     Propagation,
     frame_averaged,
@@ -15,6 +16,7 @@ from aasl_gym.measurement_models import (
 )
 
 FIXED = np.array([0.0, 0.0, -0.96])
+ENVELOPE_RATE = SignalConfig().envelope_rate  # Hz, the shipped fast path's
 C = 1500.0
 
 
@@ -50,9 +52,9 @@ def test_the_frame_model_is_what_the_tone_front_end_measures_with_reflections(rn
         waveform = synthesis.Waveform.random("tone", rng)
         paths = synthesis.path_sources(source, source_velocity, True, 60.0, -0.9, 0.3)
         channel = synthesis.synthesize(
-            waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
+            waveform, 3.0, 0.24, ENVELOPE_RATE, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
         )
-        result = frontend.estimate(frontend.envelopes(channel, waveform, 10_000.0, 0.02), waveform, C, 45.0 / C)
+        result = frontend.estimate(frontend.envelopes(channel, waveform, ENVELOPE_RATE, 0.02), waveform, C, 45.0 / C)
         measured = np.array([result.range_difference, result.range_rate_difference])
         wavenumber = 2 * np.pi * waveform.frequency / C
         propagation = Propagation(60.0, -0.9, 0.3, wavenumber)

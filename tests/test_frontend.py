@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 
 from aasl_gym import bandpass, frontend, geometry, synthesis
+from aasl_gym.config import SignalConfig
 
 FIXED = np.array([0.0, 0.0, -0.96])
 C = 1500.0
+ENVELOPE_RATE = SignalConfig().envelope_rate  # Hz, the shipped fast path's
 MAX_DELAY = 45.0 / C
 
 
@@ -22,7 +24,7 @@ def measure(
     waveform, source, source_velocity, mobile, mobile_velocity, baseband=True, noise_level_db=None, rng=None, guard=0.02
 ):
     """One 0.2 s frame (plus ``guard`` s each side, dropped after filtering) through the front end."""
-    rate = 10_000.0 if baseband else 200_000.0
+    rate = ENVELOPE_RATE if baseband else 200_000.0
     paths = synthesis.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
     channel = synthesis.synthesize(
         waveform,
@@ -39,9 +41,8 @@ def measure(
         noise_level_db,
         rng,
     )
-    return frontend.estimate(
-        frontend.envelopes(channel, waveform, 10_000.0, guard), waveform, C, MAX_DELAY, noise_level_db=noise_level_db
-    )
+    envelope = frontend.envelopes(channel, waveform, ENVELOPE_RATE, guard)
+    return frontend.estimate(envelope, waveform, C, MAX_DELAY, noise_level_db=noise_level_db)
 
 
 @pytest.mark.parametrize("kind", ["tone", "sweep", "hop"])
@@ -81,7 +82,7 @@ def test_fdoa_sign_follows_the_spec(rng):
     waveform = synthesis.Waveform.random("tone", rng)
     paths = synthesis.path_sources(source, source_velocity, False, 60.0, -0.9, 0.3)
     channel = synthesis.synthesize(
-        waveform, 3.0, 0.2, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
+        waveform, 3.0, 0.2, ENVELOPE_RATE, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
     )
 
     def frequency(envelope):
@@ -117,14 +118,14 @@ def test_filtered_noise_matches_its_closed_form_on_both_paths(kind, rng):
     mirror band (negative frequencies) must not let noise through."""
     waveform = synthesis.Waveform.random(kind, rng)
     level, band = 80.0, waveform.band
-    for baseband, rate in ((True, 10_000.0), (False, 200_000.0)):
+    for baseband, rate in ((True, ENVELOPE_RATE), (False, 200_000.0)):
         channel = synthesis.synthesize(
             waveform, 0.0, 4.0, rate, baseband, [], FIXED + 10, np.zeros(3), FIXED, C, 140.0, level, rng
         )
-        noise = frontend.envelopes(channel, waveform, 10_000.0, 0.02).fixed
+        noise = frontend.envelopes(channel, waveform, ENVELOPE_RATE, 0.02).fixed
         power = 2 * 10 ** (level / 10) * bandpass.noise_bandwidth(band) / (band[1] - band[0])
         assert np.mean(np.abs(noise) ** 2) == pytest.approx(power, rel=0.04)
-        lag_product = frontend.noise_lag_product(level, band, waveform.carrier, 10_000.0)
+        lag_product = frontend.noise_lag_product(level, band, waveform.carrier, ENVELOPE_RATE)
         assert abs(np.vdot(noise[:-1], noise[1:]) / (len(noise) - 1) - lag_product) < 0.04 * abs(lag_product)
 
 
@@ -174,9 +175,9 @@ def test_with_reflections_the_tone_front_end_measures_the_phasor_model(rng):
         waveform = synthesis.Waveform.random("tone", rng)
         paths = synthesis.path_sources(source, source_velocity, True, 60.0, -0.9, 0.3)
         channel = synthesis.synthesize(
-            waveform, 3.0, 0.24, 10_000.0, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
+            waveform, 3.0, 0.24, ENVELOPE_RATE, True, paths, mobile, mobile_velocity, FIXED, C, 140.0, None, None
         )
-        result = frontend.estimate(frontend.envelopes(channel, waveform, 10_000.0, 0.02), waveform, C, MAX_DELAY)
+        result = frontend.estimate(frontend.envelopes(channel, waveform, ENVELOPE_RATE, 0.02), waveform, C, MAX_DELAY)
         wavenumber, wavelength = 2 * np.pi * waveform.frequency / C, C / waveform.frequency
         offsets = np.linspace(-0.1, 0.1, 201)[:, None]
         model_rd, _ = geometry.phasor_multipath(
