@@ -206,7 +206,8 @@ class SignalConfig:
     guard: float = 0.02  # s synthesized at each end of a frame and dropped after filtering
     sample_rate: float = 200_000.0  # Hz, hardware path
     # Hz, the fast path's rate and the rate both paths estimate at: the band (a tone's +-10 %, a sweep's 1 kHz) and
-    # the filter's skirts fit with room (noise-free frames measure as at 10 kHz: tone RD, RRD within 0.1 mm, mm/s)
+    # the filter's skirts fit with room. Noise-free frames measure as at 10 kHz: a tone's RD and RRD within 1e-3 mm
+    # and mm/s; in the free field a sweep's or hop's within 1 mm and 20 mm/s (session 13)
     envelope_rate: float = 4_000.0
     windows: int = 10  # short windows per frame for the delay track (TDOA mean, FDOA slope)
     sd_inflation: float = 1.5  # the filter's R uses the Cramer-Rao sd from the frame's SNRs times this

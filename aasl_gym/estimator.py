@@ -135,10 +135,10 @@ EXTRA_STATE_SD = {"cv": 0.0, "ca": 0.02, "ctrv": 0.1}  # initial sd of accelerat
 RIPPLE_SAMPLES = 120  # a fine (phasor) window fit uses at most this many samples, evenly spaced
 RIPPLE_FITS = 4  # window fits that go on to the phasor model's ripple (the best of the coarse fits)
 RIPPLE_NIS_CAP = 2.5  # x filter.divergence_nis: the most one frame adds to that test's mean under the phasor model
+RIPPLE_GATE = 3.0  # robust cost per residual a fine window fit may have (at the truth ~1.5, in a wrong dip ~9)
 # s: a scheduled re-seed's window shorter than this always gets LC-MAP's fresh search (a short window is explained
 # by many wrong states; without it the free field's sources converged 2-3 s later on tuning seeds, session 13).
 FRESH_SEARCH_UNTIL = 10.0
-RIPPLE_GATE = 3.0  # robust cost per residual a fine window fit may have (at the truth ~1.5, in a wrong dip ~9)
 
 
 @dataclass
