@@ -315,7 +315,7 @@ def test_a_scheduled_reseed_searches_afresh_only_where_no_filter_explains_the_wi
             _, _, _, _, info = env.step(np.zeros(3))
         tracker = env.tracker
         assert info["position_error"] < 1.0
-        calls: list[int] = []
+        calls: list[float] = []
         lcmap_at = tracker._lcmap_at
 
         def counted(time, lcmap_at=lcmap_at, calls=calls):
