@@ -34,9 +34,10 @@ the running filters are refitted on it, and LC-MAP runs on it afresh, fitting th
 (straight, turning or accelerating; see :mod:`aasl_gym.initializers`), unless a running filter explains
 the window (its chi-square below ``reseed_search_quantile``; the fresh search is most of a re-seed's
 cost and seldom beats such a filter). Fresh hypotheses and running filters are weighed on that window's
-chi-square (a fresh one next to a running filter on its sheet yields to it), and with ``filter.window_fit`` the best
-``initializer.hypotheses`` are refined by the sliding-window MAP (:mod:`aasl_gym.window`; under the
-phasor model a second fit resolves the ripple, kept only where it explains the window).
+chi-square (a fresh one next to a running filter on its sheet yields to it), and with
+``filter.window_fit`` the best ``initializer.hypotheses`` are refined by the sliding-window MAP
+(:mod:`aasl_gym.window`; under the phasor model a second fit resolves the ripple, kept only where it
+explains the window).
 
 The phasor search. Under reflections LC-MAP's coarse candidates land metres from a moving source,
 outside the basin of the phasor model's window fit. Once an episode, at the first re-seed whose
@@ -431,9 +432,11 @@ class SourceTracker:
         candidates: list[tuple[np.ndarray, np.ndarray]] = running
         if length is not None or not self._explained(burst, chi_square):
             fresh = self._lcmap_at(time)(burst, rng)
-            candidates = running + [self._embed(fresh, i) for i in range(len(fresh.states))]
-            fresh_states = np.array([x for x, _ in candidates[len(running) :]])
-            chi_square = np.concatenate([chi_square, self._window_chi_square(burst, fresh_states)])
+            embedded = [self._embed(fresh, i) for i in range(len(fresh.states))]
+            chi_square = np.concatenate(
+                [chi_square, self._window_chi_square(burst, np.array([x for x, _ in embedded]))]
+            )
+            candidates = running + embedded
         states = np.array([x for x, _ in candidates])
         base = states[:, self.model.base_index]
         separation = self.reinitializer.separation
