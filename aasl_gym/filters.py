@@ -117,6 +117,30 @@ class MotionModel:
         moved = self._advance(expanded, np.asarray(lags, dtype=float)[None, :, None])
         return self._fold(moved) if self.fold_trajectories else moved
 
+    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, step: float) -> np.ndarray:
+        """d[p, v](t_k) / d x of :meth:`trajectory`: (C, K, 6, n - 2), over the components that move the
+        trajectory (the biases do not), by central differences of ``step`` in each (m, m/s, rad/s, m/s^2).
+        The linear models override it in closed form."""
+        count, dim = states.shape
+        moving = dim - 2
+        shift = step * np.eye(dim)[:moving, None, :]  # (moving, 1, n)
+        shifted = np.concatenate([(states + shift).reshape(-1, dim), (states - shift).reshape(-1, dim)])
+        ahead, behind = self.trajectory(shifted, lags)[..., 0:6].reshape(2, moving, count, -1, 6)
+        return np.moveaxis((ahead - behind) / (2 * step), 0, -1)
+
+    def _folded(self, jacobian: np.ndarray, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        """A free trajectory's Jacobian (C, K, 6, m) with the fold's sign (see :meth:`_fold`) on its z and
+        v_z rows where the fold mirrored the state (a free motion's vertical part is z + v_z t (+ a_z t^2 / 2))."""
+        if not self.fold_trajectories:
+            return jacobian
+        assert self.depth_bounds is not None  # fold_trajectories needs them
+        low, high = self.depth_bounds
+        free = self._advance(np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim)), lags[None, :, None])
+        mirrored = np.mod(free[..., 2] - low, 2 * (high - low)) > high - low
+        sign = np.ones(jacobian.shape[:2] + (6, 1))
+        sign[..., [2, 5], 0] = np.where(mirrored, -1.0, 1.0)[..., None]
+        return jacobian * sign
+
     def process_noise(self, dt: float) -> np.ndarray:
         if dt not in self._noise_cache:
             q = np.zeros((self.dim, self.dim))
@@ -150,7 +174,21 @@ class MotionModel:
         return x, p
 
 
-class ConstantVelocity(MotionModel):
+class LinearMotionModel(MotionModel):
+    """A model whose free motion is linear in the state: its trajectory Jacobian is the transition's
+    matrix, the same for every state, with the fold's sign on the vertical rows."""
+
+    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, step: float) -> np.ndarray:
+        """:meth:`MotionModel.trajectory_jacobian` in closed form (``step`` is not used): the transition of
+        each moving component's unit vector, sign-flipped in z and v_z where a fold mirrored the state."""
+        moving = self.dim - 2
+        lags = np.asarray(lags, dtype=float)
+        units = np.broadcast_to(np.eye(self.dim)[:moving], (len(lags), moving, self.dim))
+        matrix = np.swapaxes(self._advance(units, lags[:, None, None])[..., 0:6], -1, -2)  # (K, 6, moving)
+        return self._folded(np.broadcast_to(matrix, (len(states),) + matrix.shape), states, lags)
+
+
+class ConstantVelocity(LinearMotionModel):
     name, dim = "cv", 8
 
     def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
@@ -162,7 +200,7 @@ class ConstantVelocity(MotionModel):
         return np.kron(_white_noise_blocks(dt, 2), np.eye(3)) * self.config.acceleration_psd
 
 
-class ConstantAcceleration(MotionModel):
+class ConstantAcceleration(LinearMotionModel):
     name, dim = "ca", 11
 
     def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
@@ -188,6 +226,37 @@ class CoordinatedTurn(MotionModel):
         out[..., 0:3] += displacement
         out[..., 3:6] = velocity
         return out
+
+    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, step: float) -> np.ndarray:
+        """:meth:`MotionModel.trajectory_jacobian` in closed form (``step`` is not used). With
+        p(t) = p + D v, v(t) = B v (:func:`~aasl_gym.motion.coordinated_turn_displacement`:
+        D = [[s, -c, 0], [c, s, 0], [0, 0, t]], B the rotation by omega t, s = sin(omega t) / omega,
+        c = (1 - cos(omega t)) / omega), the omega column is dD/domega v and dB/domega v."""
+        lags = np.asarray(lags, dtype=float)[None, :]
+        turn = states[:, 6, None]
+        angle = turn * lags
+        cos_a, sin_a = np.cos(angle), np.sin(angle)
+        small = np.abs(angle) < 1e-4
+        safe = np.where(small, 1.0, turn)
+        sine_term = np.where(small, lags * (1 - angle**2 / 6), sin_a / safe)
+        cosine_term = np.where(small, lags * (angle / 2 - angle**3 / 24), (1 - cos_a) / safe)
+        # d s / d omega and d c / d omega, by their series where omega t is small.
+        sine_rate = np.where(small, -turn * lags**3 / 3, (lags * cos_a - sine_term) / safe)
+        cosine_rate = np.where(small, lags**2 / 2 - turn**2 * lags**4 / 8, (lags * sin_a - cosine_term) / safe)
+        vx, vy = states[:, 3, None], states[:, 4, None]
+        jacobian = np.zeros(angle.shape + (6, 7))
+        jacobian[..., [0, 1, 2], [0, 1, 2]] = 1.0
+        jacobian[..., 0, 3], jacobian[..., 0, 4] = sine_term, -cosine_term
+        jacobian[..., 1, 3], jacobian[..., 1, 4] = cosine_term, sine_term
+        jacobian[..., 2, 5] = lags
+        jacobian[..., 3, 3], jacobian[..., 3, 4] = cos_a, -sin_a
+        jacobian[..., 4, 3], jacobian[..., 4, 4] = sin_a, cos_a
+        jacobian[..., 5, 5] = 1.0
+        jacobian[..., 0, 6] = sine_rate * vx - cosine_rate * vy
+        jacobian[..., 1, 6] = cosine_rate * vx + sine_rate * vy
+        jacobian[..., 3, 6] = -lags * (sin_a * vx + cos_a * vy)
+        jacobian[..., 4, 6] = lags * (cos_a * vx - sin_a * vy)
+        return self._folded(jacobian, states, lags[0])
 
     def _kinematic_noise(self, dt: float) -> np.ndarray:
         q = np.zeros((7, 7))

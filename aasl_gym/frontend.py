@@ -222,7 +222,7 @@ def delay_track(
     delays, coherences, times = _window_delays(envelope, edges, lag, tone, noise_lag)
     if tone:  # each window's delay is known modulo one period: keep the track continuous across windows
         period = 1.0 / waveform.frequency
-        delays = np.unwrap(delays * 2 * np.pi / period) * period / (2 * np.pi)
+        delays = geometry.unwrap_to_period(delays, period)
     return DelayTrack(delays, times, coherences)
 
 

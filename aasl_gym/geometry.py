@@ -15,6 +15,8 @@ Conventions (SPEC section 2), with p_s the source, p_m the mobile and p_f the fi
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 ZERO3 = np.zeros(3)
@@ -122,49 +124,79 @@ def linear_multipath(
     return rd, rrd
 
 
+class _ReceiverPaths(NamedTuple):
+    """What the phasor model needs at one receiver, in real arithmetic (this runs on every window-fit
+    trial state at every sample, where it dominates the tracker's cost): the offset from the receiver
+    to the source (..., 3), the direct range d (m), each image's vertical offset, range r_i (m) and term
+    T_i = a_i (d / r_i) exp(-j k (r_i - d)) as real and imaginary parts, and the multipath factor
+    M = 1 + sum_i T_i likewise. The images share the direct path's horizontal offset."""
+
+    offset: np.ndarray
+    direct: np.ndarray
+    images: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+    factor_real: np.ndarray
+    factor_imag: np.ndarray
+
+    @property
+    def phase(self) -> np.ndarray:
+        """rad, the phase of M in (-pi, pi]."""
+        return np.arctan2(self.factor_imag, self.factor_real)
+
+
+def _receiver_paths(
+    source: np.ndarray, receiver: np.ndarray, water_depth: float, gains: tuple[float, float], wavenumber: float
+) -> _ReceiverPaths:
+    """:class:`_ReceiverPaths` at ``receiver`` for the surface image (x, y, -z) and the bed image
+    (x, y, -2D - z) of :func:`image_sources`, with reflection coefficients ``gains``."""
+    offset = np.asarray(source, dtype=float) - receiver
+    horizontal = offset[..., 0] ** 2 + offset[..., 1] ** 2
+    direct = np.sqrt(horizontal + offset[..., 2] ** 2)
+    height = np.asarray(receiver, dtype=float)[..., 2]
+    depth = np.asarray(source, dtype=float)[..., 2]
+    factor_real, factor_imag = np.ones(np.shape(direct)), np.zeros(np.shape(direct))
+    images = []
+    for vertical, gain in ((-depth - height, gains[0]), (-2.0 * water_depth - depth - height, gains[1])):
+        image_range = np.sqrt(horizontal + vertical**2)
+        delay_phase = wavenumber * (image_range - direct)
+        amplitude = gain * direct / image_range
+        term_real, term_imag = amplitude * np.cos(delay_phase), -amplitude * np.sin(delay_phase)
+        factor_real, factor_imag = factor_real + term_real, factor_imag + term_imag
+        images.append((vertical, image_range, term_real, term_imag))
+    return _ReceiverPaths(offset, direct, images, factor_real, factor_imag)
+
+
 def _multipath_phase(
     source: np.ndarray,
     source_velocity: np.ndarray,
     receiver: np.ndarray,
     receiver_velocity: np.ndarray,
-    images: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    water_depth: float,
     gains: tuple[float, float],
     wavenumber: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Phase (rad) of the multipath factor M = S / S_direct at one receiver and its rate (rad/s), with
-    the direct path's range (m) and range rate (m/s); ``images`` from :func:`image_sources`.
+    the direct path's range (m) and range rate (m/s).
 
     S = sum_k a_k / r_k exp(-j k r_k) over the direct path (a = 1) and the images, so
-    M = 1 + sum_images a_i (d / r_i) exp(-j k (r_i - d)).
+    M = 1 + sum_images a_i (d / r_i) exp(-j k (r_i - d)), and dM/dt = sum_i T_i dlog T_i / dt with
+    dlog T_i / dt = d'/d - r_i'/r_i - j k (r_i' - d'); the images move with the source mirrored.
     """
-    factor, direct, unit, terms = _multipath_factor(source, receiver, images, gains, wavenumber)
-    direct_rate = range_rate(unit, source_velocity, receiver_velocity)
-    factor_rate = np.zeros(np.shape(direct), dtype=complex)
-    for (term, image_range, image_unit), (_, image_velocity) in zip(terms, images):
-        image_rate = range_rate(image_unit, image_velocity, receiver_velocity)
-        log_rate = direct_rate / direct - image_rate / image_range - 1j * wavenumber * (image_rate - direct_rate)
-        factor_rate = factor_rate + term * log_rate
-    return np.angle(factor), np.imag(factor_rate / factor), direct, direct_rate
-
-
-def _multipath_factor(
-    source: np.ndarray,
-    receiver: np.ndarray,
-    images: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
-    gains: tuple[float, float],
-    wavenumber: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """The multipath factor M = 1 + sum_images a_i (d / r_i) exp(-j k (r_i - d)) at ``receiver``, the
-    direct path's range d (m) and unit vector, and each image's term with its range r_i (m) and unit vector."""
-    direct, unit = ranges(source, receiver)
-    factor = np.ones(np.shape(direct), dtype=complex)
-    terms = []
-    for (image, _), gain in zip(images, gains):
-        image_range, image_unit = ranges(image, receiver)
-        term = gain * direct / image_range * np.exp(-1j * wavenumber * (image_range - direct))
-        factor = factor + term
-        terms.append((term, image_range, image_unit))
-    return factor, direct, unit, terms
+    paths = _receiver_paths(source, receiver, water_depth, gains, wavenumber)
+    relative = np.asarray(source_velocity, dtype=float) - receiver_velocity
+    offset, direct = paths.offset, paths.direct
+    horizontal_rate = offset[..., 0] * relative[..., 0] + offset[..., 1] * relative[..., 1]
+    direct_rate = (horizontal_rate + offset[..., 2] * relative[..., 2]) / direct
+    image_vertical_velocity = -np.asarray(source_velocity, dtype=float)[..., 2] - np.asarray(receiver_velocity)[..., 2]
+    rate_real, rate_imag = np.zeros(np.shape(direct)), np.zeros(np.shape(direct))
+    for vertical, image_range, term_real, term_imag in paths.images:
+        image_rate = (horizontal_rate + vertical * image_vertical_velocity) / image_range
+        log_real = direct_rate / direct - image_rate / image_range
+        log_imag = -wavenumber * (image_rate - direct_rate)
+        rate_real = rate_real + term_real * log_real - term_imag * log_imag
+        rate_imag = rate_imag + term_real * log_imag + term_imag * log_real
+    power = paths.factor_real**2 + paths.factor_imag**2
+    phase_rate = (rate_imag * paths.factor_real - rate_real * paths.factor_imag) / power
+    return paths.phase, phase_rate, direct, direct_rate
 
 
 def multipath_factor(
@@ -177,21 +209,8 @@ def multipath_factor(
 ) -> np.ndarray:
     """M = S / S_direct (complex) at ``receiver``: the tone through the surface and bed images relative to
     the direct path alone (|M| scales the received amplitude, its phase the apparent range)."""
-    gains = (surface_reflection, bed_reflection)
-    return _stationary_factors(source, (receiver,), water_depth, gains, wavenumber)[0][0]
-
-
-def _stationary_factors(
-    source: np.ndarray,
-    receivers: tuple[np.ndarray, ...],
-    water_depth: float,
-    gains: tuple[float, float],
-    wavenumber: float,
-) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]]:
-    """:func:`_multipath_factor` at each of ``receivers``, the images made once; their velocities are
-    not needed (what uses this takes no rates)."""
-    images = image_sources(source, np.zeros_like(source), water_depth)
-    return [_multipath_factor(source, receiver, images, gains, wavenumber) for receiver in receivers]
+    paths = _receiver_paths(source, receiver, water_depth, (surface_reflection, bed_reflection), wavenumber)
+    return paths.factor_real + 1j * paths.factor_imag
 
 
 def phasor_range_difference(
@@ -206,16 +225,29 @@ def phasor_range_difference(
     """The apparent RD (m) of :func:`phasor_multipath` alone, to the last bit, without the rates: what a
     frame's RD track is made of (its slope is the frame's RRD), at about two thirds of the cost."""
     gains = (surface_reflection, bed_reflection)
-    return _apparent_range_difference(
-        _stationary_factors(source, (mobile, fixed), water_depth, gains, wavenumber), wavenumber
-    )
+    mobile_paths, fixed_paths = (_receiver_paths(source, r, water_depth, gains, wavenumber) for r in (mobile, fixed))
+    return _apparent_range_difference(mobile_paths, fixed_paths, wavenumber)
 
 
-def _apparent_range_difference(factors: list, wavenumber: float) -> np.ndarray:
-    """RD_app = (d_m - d_f) + (phi_f - phi_m) / k from the mobile's and the fixed hydrophone's
-    :func:`_multipath_factor` results."""
-    (factor_m, range_m, _, _), (factor_f, range_f, _, _) = factors
-    return (range_m - range_f) + (np.angle(factor_f) - np.angle(factor_m)) / wavenumber
+def _apparent_range_difference(mobile: _ReceiverPaths, fixed: _ReceiverPaths, wavenumber: float) -> np.ndarray:
+    """RD_app = (d_m - d_f) + (phi_f - phi_m) / k from the two receivers' paths."""
+    return (mobile.direct - fixed.direct) + (fixed.phase - mobile.phase) / wavenumber
+
+
+def _phase_gradient_terms(paths: _ReceiverPaths, wavenumber: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The scalars of d phi (phi the phase of M) at one receiver: with w_i = T_i / M,
+    A = sum_i (Im w_i / d + k Re w_i) and B_i = Im w_i / r_i + k Re w_i, the source's gradient is
+    A u - sum_i B_i S u_i and the receiver's -A u + sum_i B_i u_i (u, u_i the unit vectors from the
+    receiver to the source and its images, S the mirror diag(1, 1, -1))."""
+    power = paths.factor_real**2 + paths.factor_imag**2
+    along_direct = np.zeros(np.shape(paths.direct))
+    along_images = []
+    for _, image_range, term_real, term_imag in paths.images:
+        weight_real = (term_real * paths.factor_real + term_imag * paths.factor_imag) / power
+        weight_imag = (term_imag * paths.factor_real - term_real * paths.factor_imag) / power
+        along_direct = along_direct + weight_imag / paths.direct + wavenumber * weight_real
+        along_images.append(weight_imag / image_range + wavenumber * weight_real)
+    return along_direct, along_images
 
 
 def phasor_range_difference_linearized(
@@ -234,28 +266,33 @@ def phasor_range_difference_linearized(
     M = 1 + sum_i T_i, T_i = a_i (d / r_i) exp(-j k (r_i - d)). A small move changes log T_i by
     dd / d - dr_i / r_i - j k (dr_i - dd), so dphi = Im(sum_i (T_i / M) dlog T_i). With respect to the
     source dd = u . dp and dr_i = (S u_i) . dp (S the image's mirror, diag(1, 1, -1)); with respect to
-    the receiver dd = -u . dr and dr_i = -u_i . dr (u, u_i the unit vectors from the receiver).
+    the receiver dd = -u . dr and dr_i = -u_i . dr (u, u_i the unit vectors from the receiver). The
+    images share the direct path's horizontal offset, so each gradient's horizontal part is that offset
+    times one scalar (:func:`_phase_gradient_terms`).
     """
     gains = (surface_reflection, bed_reflection)
-    mirror = np.array([1.0, 1.0, -1.0])
-    factors = _stationary_factors(source, (mobile, fixed), water_depth, gains, wavenumber)
-    gradients = []
-    for (factor, direct, unit, terms), mobile_receiver in zip(factors, (True, False)):
-        phase_source = np.zeros(np.shape(unit))
-        phase_receiver = np.zeros(np.shape(unit))  # stays zero for the fixed one, which does not move
-        for term, image_range, image_unit in terms:
-            weight = term / factor
-            sine, cosine = weight.imag[..., None], weight.real[..., None]
-            along_direct, along_image = unit / direct[..., None], image_unit / image_range[..., None]
-            mirrored, mirrored_along = mirror * image_unit, mirror * along_image
-            phase_source += sine * (along_direct - mirrored_along) - wavenumber * cosine * (mirrored - unit)
-            if mobile_receiver:
-                phase_receiver += sine * (along_image - along_direct) - wavenumber * cosine * (unit - image_unit)
-        gradients.append((unit, phase_source, phase_receiver))
-    range_difference = _apparent_range_difference(factors, wavenumber)
-    (unit_m, source_m, receiver_m), (unit_f, source_f, _) = gradients
-    source_gradient = (unit_m - unit_f) + (source_f - source_m) / wavenumber
-    mobile_gradient = -unit_m - receiver_m / wavenumber
+    mobile_paths, fixed_paths = (_receiver_paths(source, r, water_depth, gains, wavenumber) for r in (mobile, fixed))
+    range_difference = _apparent_range_difference(mobile_paths, fixed_paths, wavenumber)
+    source_parts, mobile_part = [], None
+    for paths, is_mobile in ((mobile_paths, True), (fixed_paths, False)):
+        along_direct, along_images = _phase_gradient_terms(paths, wavenumber)
+        inverse = 1.0 / paths.direct
+        image_horizontal = sum(b / image[1] for b, image in zip(along_images, paths.images))
+        image_vertical = sum(b * image[0] / image[1] for b, image in zip(along_images, paths.images))
+        # d(d - phi / k)/d source: the horizontal offset times one scalar, and the vertical component.
+        horizontal = inverse - (along_direct * inverse - image_horizontal) / wavenumber
+        radial = paths.offset[..., 2] * (inverse - along_direct * inverse / wavenumber)
+        source_parts.append((paths.offset, horizontal, radial - image_vertical / wavenumber))
+        if is_mobile:  # d/d receiver: the direct terms change sign, the images' do not (their offsets do not mirror)
+            mobile_part = (horizontal, -radial - image_vertical / wavenumber)
+    (offset_m, horizontal_m, vertical_m), (offset_f, horizontal_f, vertical_f) = source_parts
+    assert mobile_part is not None
+    source_gradient = np.empty(np.broadcast_shapes(offset_m.shape, offset_f.shape))
+    source_gradient[..., 0:2] = offset_m[..., 0:2] * horizontal_m[..., None] - offset_f[..., 0:2] * horizontal_f[..., None]
+    source_gradient[..., 2] = vertical_m - vertical_f
+    mobile_gradient = np.empty(offset_m.shape)
+    mobile_gradient[..., 0:2] = -offset_m[..., 0:2] * mobile_part[0][..., None]
+    mobile_gradient[..., 2] = mobile_part[1]
     return range_difference, source_gradient, mobile_gradient
 
 
@@ -279,18 +316,27 @@ def phasor_multipath(
     apparent RRD is its exact time derivative.
     """
     gains = (surface_reflection, bed_reflection)
-    # The images and the direct ranges are shared by the two receivers' factors and the direct RD and
-    # RRD: this model runs on every LC-MAP candidate at every burst sample, where it dominates the cost.
-    images = image_sources(source, source_velocity, water_depth)
+    # Each receiver's direct range and range rate come with its factor: this model runs on every LC-MAP
+    # candidate at every burst sample, where it dominates the cost.
     phase_m, phase_rate_m, range_m, range_rate_m = _multipath_phase(
-        source, source_velocity, mobile, mobile_velocity, images, gains, wavenumber
+        source, source_velocity, mobile, mobile_velocity, water_depth, gains, wavenumber
     )
     phase_f, phase_rate_f, range_f, range_rate_f = _multipath_phase(
-        source, source_velocity, fixed, ZERO3, images, gains, wavenumber
+        source, source_velocity, fixed, ZERO3, water_depth, gains, wavenumber
     )
     rd = (range_m - range_f) + (phase_f - phase_m) / wavenumber
     rrd = (range_rate_m - range_rate_f) + (phase_rate_f - phase_rate_m) / wavenumber
     return rd, rrd
+
+
+def unwrap_to_period(values: np.ndarray, period: float) -> np.ndarray:
+    """``values`` (..., S) made continuous along the last axis: each step between neighbours moved by
+    whole periods into [-period/2, period/2] (``np.unwrap`` in the values' own unit, at a third of its cost)."""
+    values = np.asarray(values, dtype=float)
+    slips = np.cumsum(np.round(np.diff(values, axis=-1) / period), axis=-1) * period
+    unwrapped = values.copy()
+    unwrapped[..., 1:] -= slips
+    return unwrapped
 
 
 def wrap_to_period(value: np.ndarray | float, period: float) -> np.ndarray | float:

@@ -120,7 +120,7 @@ def frame_averaged(
 def _frame_mean_and_slope(rd: np.ndarray, offsets: np.ndarray, wavenumber: float) -> np.ndarray:
     """[mean, least-squares slope] (..., 2) of a frame's RD track (..., S) sampled at ``offsets``,
     unwrapped across them (wavenumber k, rad/m)."""
-    rd = np.unwrap(rd * wavenumber, axis=-1) / wavenumber
+    rd = geometry.unwrap_to_period(rd, 2 * np.pi / wavenumber)
     mean = rd.mean(axis=-1)
     slope = (rd - mean[..., None]) @ offsets / (offsets @ offsets)
     return np.stack([mean, slope], axis=-1)
@@ -197,14 +197,10 @@ def _frame_jacobian(gradients: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     mean and the least-squares slope are linear in the samples; unwrapping adds constants only."""
     mean_weights = np.full(len(offsets), 1 / len(offsets))
     slope_weights = offsets / (offsets @ offsets)
-    rows = [
-        np.concatenate(
-            [np.einsum("s,...si->...i", weights, gradients), np.einsum("s,...si->...i", weights * offsets, gradients)],
-            axis=-1,
-        )
-        for weights in (mean_weights, slope_weights)
-    ]
-    return np.stack(rows, axis=-2)
+    # Rows [mean, slope] x columns [x, x']: each a weighted sum over the samples, one matrix product.
+    weights = np.stack([mean_weights, mean_weights * offsets, slope_weights, slope_weights * offsets])  # (4, S)
+    combined = np.tensordot(gradients, weights, axes=([-2], [1]))  # (..., 3, 4)
+    return np.swapaxes(combined, -1, -2).reshape(gradients.shape[:-2] + (2, 6))
 
 
 def state_jacobian_function(measurement_function):

@@ -162,3 +162,24 @@ def test_folded_window_trajectories_reflect_where_the_world_does():
     end = np.concatenate([path[-1], [0.0, 0.0]])
     back = model.trajectory(end[None], 0.2 * np.arange(-(len(path) - 1), 1))[0]
     np.testing.assert_allclose(back[:, 0:6], path, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["cv", "ca", "ctrv"])
+def test_trajectory_jacobian_matches_central_differences_across_folds(name, rng):
+    """d[p, v](t_k)/d x of a window's trajectories (closed form for the linear models, with the fold's
+    sign where a bound mirrored the state) against central differences of the trajectories themselves."""
+    model = MOTION_MODELS[name](FilterConfig(), (-12.0, -2.0), fold_trajectories=True)
+    states = np.zeros((6, model.dim))
+    states[:, 0:3] = rng.uniform([-20, -20, -11.5], [20, 20, -2.5], (6, 3))
+    states[:, 3:6] = rng.uniform(-1.0, 1.0, (6, 3))
+    states[:, 6 : model.dim - 2] = rng.uniform(-0.05, 0.05, (6, model.dim - 8))
+    lags = np.linspace(-60.0, 0.0, 41)
+    assert np.any(np.abs(model.trajectory(states, lags)[..., 5] - states[:, None, 5]) > 0)  # some fold
+    step = 1e-6
+    columns = []
+    for j in range(model.dim - 2):
+        shift = np.zeros(model.dim)
+        shift[j] = step
+        ahead, behind = model.trajectory(states + shift, lags), model.trajectory(states - shift, lags)
+        columns.append((ahead - behind)[..., 0:6] / (2 * step))
+    np.testing.assert_allclose(model.trajectory_jacobian(states, lags, 1e-4), np.stack(columns, -1), rtol=1e-4, atol=1e-5)

@@ -142,3 +142,15 @@ def test_linear_model_sign_conventions():
     )
     rd, _ = geometry.linear_multipath(source, np.zeros(3), mobile, np.zeros(3), fixed, 30.0, -0.9, 0.3)
     assert rd == pytest.approx(expected)
+
+
+def test_unwrap_to_period_agrees_with_numpys_unwrap(rng):
+    """A wrapped random walk unwrapped in its own unit equals numpy's unwrap of the same phases."""
+    walk = np.cumsum(rng.normal(0.0, 0.15, (200, 12)), axis=-1)  # m, steps well under half a period
+    period = 1.5
+    wrapped = geometry.wrap_to_period(walk, period)
+    expected = np.unwrap(wrapped * 2 * np.pi / period, axis=-1) * period / (2 * np.pi)
+    np.testing.assert_allclose(geometry.unwrap_to_period(wrapped, period), expected, atol=1e-12)
+    # The walk comes back, offset by the whole periods its first value was wrapped by.
+    offset = np.broadcast_to((wrapped - walk)[:, :1], walk.shape)
+    np.testing.assert_allclose(geometry.unwrap_to_period(wrapped, period) - walk, offset, atol=1e-12)
