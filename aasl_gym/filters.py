@@ -81,14 +81,19 @@ class MotionModel:
     def _fold(self, states: np.ndarray) -> np.ndarray:
         """Free-motion states (..., n) folded into the depth bounds (in place): z mirrored, the vertical
         velocity and acceleration negated on every odd fold."""
-        assert self.depth_bounds is not None  # fold_trajectories needs them
-        low, high = self.depth_bounds
-        span = high - low
-        phase = np.mod(states[..., 2] - low, 2 * span)
-        mirrored = phase > span  # an odd number of reflections
+        low, span, phase, mirrored = self._fold_phase(states[..., 2])
         states[..., 2] = low + np.where(mirrored, 2 * span - phase, phase)
         states[..., self._vertical()[1:]] *= np.where(mirrored, -1.0, 1.0)[..., None]
         return states
+
+    def _fold_phase(self, free_depth: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
+        """Where a free motion's z (m) lies in the folding's period: the lower bound, the slab's span, the
+        phase in [0, 2 span) above the lower bound and whether it was mirrored (an odd number of reflections)."""
+        assert self.depth_bounds is not None  # fold_trajectories needs them
+        low, high = self.depth_bounds
+        span = high - low
+        phase = np.mod(free_depth - low, 2 * span)
+        return low, span, phase, phase > span
 
     def reflect(self, x: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A filter's mean and covariance once its mean is beyond a depth bound and moving away, by more
@@ -117,26 +122,19 @@ class MotionModel:
         moved = self._advance(expanded, np.asarray(lags, dtype=float)[None, :, None])
         return self._fold(moved) if self.fold_trajectories else moved
 
-    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, step: float) -> np.ndarray:
+    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:  # pragma: no cover
         """d[p, v](t_k) / d x of :meth:`trajectory`: (C, K, 6, n - 2), over the components that move the
-        trajectory (the biases do not), by central differences of ``step`` in each (m, m/s, rad/s, m/s^2).
-        The linear models override it in closed form."""
-        count, dim = states.shape
-        moving = dim - 2
-        shift = step * np.eye(dim)[:moving, None, :]  # (moving, 1, n)
-        shifted = np.concatenate([(states + shift).reshape(-1, dim), (states - shift).reshape(-1, dim)])
-        ahead, behind = self.trajectory(shifted, lags)[..., 0:6].reshape(2, moving, count, -1, 6)
-        return np.moveaxis((ahead - behind) / (2 * step), 0, -1)
+        trajectory (the biases do not); each model gives it in closed form."""
+        raise NotImplementedError
 
     def _folded(self, jacobian: np.ndarray, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         """A free trajectory's Jacobian (C, K, 6, m) with the fold's sign (see :meth:`_fold`) on its z and
-        v_z rows where the fold mirrored the state (a free motion's vertical part is z + v_z t (+ a_z t^2 / 2))."""
+        v_z rows where the fold mirrored the state. A free motion's vertical part is the same in every
+        model (z + v_z t, with a_z t^2 / 2 for CA), so the fold is one sign per sample."""
         if not self.fold_trajectories:
             return jacobian
-        assert self.depth_bounds is not None  # fold_trajectories needs them
-        low, high = self.depth_bounds
-        free = self._advance(np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim)), lags[None, :, None])
-        mirrored = np.mod(free[..., 2] - low, 2 * (high - low)) > high - low
+        expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim))
+        mirrored = self._fold_phase(self._advance(expanded, lags[None, :, None])[..., 2])[3]
         sign = np.ones(jacobian.shape[:2] + (6, 1))
         sign[..., [2, 5], 0] = np.where(mirrored, -1.0, 1.0)[..., None]
         return jacobian * sign
@@ -178,9 +176,10 @@ class LinearMotionModel(MotionModel):
     """A model whose free motion is linear in the state: its trajectory Jacobian is the transition's
     matrix, the same for every state, with the fold's sign on the vertical rows."""
 
-    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, step: float) -> np.ndarray:
-        """:meth:`MotionModel.trajectory_jacobian` in closed form (``step`` is not used): the transition of
-        each moving component's unit vector, sign-flipped in z and v_z where a fold mirrored the state."""
+    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        """:meth:`MotionModel.trajectory_jacobian`: the transition of each moving component's unit vector,
+        sign-flipped in z and v_z where a fold mirrored the state. Without folding it is a read-only view
+        shared by all the states."""
         moving = self.dim - 2
         lags = np.asarray(lags, dtype=float)
         units = np.broadcast_to(np.eye(self.dim)[:moving], (len(lags), moving, self.dim))
@@ -227,8 +226,8 @@ class CoordinatedTurn(MotionModel):
         out[..., 3:6] = velocity
         return out
 
-    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, step: float) -> np.ndarray:
-        """:meth:`MotionModel.trajectory_jacobian` in closed form (``step`` is not used). With
+    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        """:meth:`MotionModel.trajectory_jacobian`. With
         p(t) = p + D v, v(t) = B v (:func:`~aasl_gym.motion.coordinated_turn_displacement`:
         D = [[s, -c, 0], [c, s, 0], [0, 0, t]], B the rotation by omega t, s = sin(omega t) / omega,
         c = (1 - cos(omega t)) / omega), the omega column is dD/domega v and dB/domega v."""

@@ -124,6 +124,15 @@ def linear_multipath(
     return rd, rrd
 
 
+class _ImagePath(NamedTuple):
+    """One image's share of a receiver's multipath factor (see :class:`_ReceiverPaths`)."""
+
+    vertical: np.ndarray  # m, the image's z less the receiver's
+    range: np.ndarray  # m, r_i
+    term_real: np.ndarray  # Re T_i
+    term_imag: np.ndarray  # Im T_i
+
+
 class _ReceiverPaths(NamedTuple):
     """What the phasor model needs at one receiver, in real arithmetic (this runs on every window-fit
     trial state at every sample, where it dominates the tracker's cost): the offset from the receiver
@@ -133,7 +142,7 @@ class _ReceiverPaths(NamedTuple):
 
     offset: np.ndarray
     direct: np.ndarray
-    images: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+    images: list[_ImagePath]
     factor_real: np.ndarray
     factor_imag: np.ndarray
 
@@ -151,17 +160,18 @@ def _receiver_paths(
     offset = np.asarray(source, dtype=float) - receiver
     horizontal = offset[..., 0] ** 2 + offset[..., 1] ** 2
     direct = np.sqrt(horizontal + offset[..., 2] ** 2)
-    height = np.asarray(receiver, dtype=float)[..., 2]
-    depth = np.asarray(source, dtype=float)[..., 2]
+    receiver_z = np.asarray(receiver, dtype=float)[..., 2]
+    source_z = np.asarray(source, dtype=float)[..., 2]
     factor_real, factor_imag = np.ones(np.shape(direct)), np.zeros(np.shape(direct))
     images = []
-    for vertical, gain in ((-depth - height, gains[0]), (-2.0 * water_depth - depth - height, gains[1])):
+    surface_vertical, bed_vertical = -source_z - receiver_z, -2.0 * water_depth - source_z - receiver_z
+    for vertical, gain in ((surface_vertical, gains[0]), (bed_vertical, gains[1])):
         image_range = np.sqrt(horizontal + vertical**2)
         delay_phase = wavenumber * (image_range - direct)
         amplitude = gain * direct / image_range
         term_real, term_imag = amplitude * np.cos(delay_phase), -amplitude * np.sin(delay_phase)
         factor_real, factor_imag = factor_real + term_real, factor_imag + term_imag
-        images.append((vertical, image_range, term_real, term_imag))
+        images.append(_ImagePath(vertical, image_range, term_real, term_imag))
     return _ReceiverPaths(offset, direct, images, factor_real, factor_imag)
 
 
@@ -182,11 +192,14 @@ def _multipath_phase(
     dlog T_i / dt = d'/d - r_i'/r_i - j k (r_i' - d'); the images move with the source mirrored.
     """
     paths = _receiver_paths(source, receiver, water_depth, gains, wavenumber)
-    relative = np.asarray(source_velocity, dtype=float) - receiver_velocity
+    source_velocity = np.asarray(source_velocity, dtype=float)
+    receiver_velocity = np.asarray(receiver_velocity, dtype=float)
+    relative = source_velocity - receiver_velocity
     offset, direct = paths.offset, paths.direct
     horizontal_rate = offset[..., 0] * relative[..., 0] + offset[..., 1] * relative[..., 1]
     direct_rate = (horizontal_rate + offset[..., 2] * relative[..., 2]) / direct
-    image_vertical_velocity = -np.asarray(source_velocity, dtype=float)[..., 2] - np.asarray(receiver_velocity)[..., 2]
+    # An image moves with the source mirrored in z: its vertical offset changes at -v_z less the receiver's.
+    image_vertical_velocity = -source_velocity[..., 2] - receiver_velocity[..., 2]
     rate_real, rate_imag = np.zeros(np.shape(direct)), np.zeros(np.shape(direct))
     for vertical, image_range, term_real, term_imag in paths.images:
         image_rate = (horizontal_rate + vertical * image_vertical_velocity) / image_range
@@ -223,7 +236,7 @@ def phasor_range_difference(
     wavenumber: float,
 ) -> np.ndarray:
     """The apparent RD (m) of :func:`phasor_multipath` alone, to the last bit, without the rates: what a
-    frame's RD track is made of (its slope is the frame's RRD), at about two thirds of the cost."""
+    frame's RD track is made of (its slope is the frame's RRD), at about three quarters of the cost."""
     gains = (surface_reflection, bed_reflection)
     mobile_paths, fixed_paths = (_receiver_paths(source, r, water_depth, gains, wavenumber) for r in (mobile, fixed))
     return _apparent_range_difference(mobile_paths, fixed_paths, wavenumber)
@@ -234,20 +247,37 @@ def _apparent_range_difference(mobile: _ReceiverPaths, fixed: _ReceiverPaths, wa
     return (mobile.direct - fixed.direct) + (fixed.phase - mobile.phase) / wavenumber
 
 
-def _phase_gradient_terms(paths: _ReceiverPaths, wavenumber: float) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The scalars of d phi (phi the phase of M) at one receiver: with w_i = T_i / M,
+def _phase_gradient_scales(paths: _ReceiverPaths, wavenumber: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The scalars A and B_i of d phi (phi the phase of M) at one receiver: with w_i = T_i / M,
     A = sum_i (Im w_i / d + k Re w_i) and B_i = Im w_i / r_i + k Re w_i, the source's gradient is
     A u - sum_i B_i S u_i and the receiver's -A u + sum_i B_i u_i (u, u_i the unit vectors from the
     receiver to the source and its images, S the mirror diag(1, 1, -1))."""
     power = paths.factor_real**2 + paths.factor_imag**2
-    along_direct = np.zeros(np.shape(paths.direct))
-    along_images = []
-    for _, image_range, term_real, term_imag in paths.images:
-        weight_real = (term_real * paths.factor_real + term_imag * paths.factor_imag) / power
-        weight_imag = (term_imag * paths.factor_real - term_real * paths.factor_imag) / power
-        along_direct = along_direct + weight_imag / paths.direct + wavenumber * weight_real
-        along_images.append(weight_imag / image_range + wavenumber * weight_real)
-    return along_direct, along_images
+    direct_scale = np.zeros(np.shape(paths.direct))
+    image_scales = []
+    for image in paths.images:
+        weight_real = (image.term_real * paths.factor_real + image.term_imag * paths.factor_imag) / power
+        weight_imag = (image.term_imag * paths.factor_real - image.term_real * paths.factor_imag) / power
+        direct_scale = direct_scale + weight_imag / paths.direct + wavenumber * weight_real
+        image_scales.append(weight_imag / image.range + wavenumber * weight_real)
+    return direct_scale, image_scales
+
+
+def _apparent_range_gradient(paths: _ReceiverPaths, wavenumber: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gradient of one receiver's apparent range d - phi / k, in parts: the scale of the horizontal
+    offset (source minus receiver), the direct path's vertical part and the images' vertical part. With
+    respect to the source it is (offset_xy * scale, direct + images); with respect to the receiver
+    (-offset_xy * scale, -direct + images): every horizontal term and the direct path's vertical one
+    change sign, but an image's vertical offset (-z_s - 2 n D - z_r) falls with the receiver's z as
+    with the source's."""
+    direct_scale, image_scales = _phase_gradient_scales(paths, wavenumber)
+    inverse_direct = 1.0 / paths.direct
+    # The images share the direct path's horizontal offset, so one scalar serves all three horizontally.
+    image_horizontal = sum(b / image.range for b, image in zip(image_scales, paths.images))
+    image_vertical = sum(b * image.vertical / image.range for b, image in zip(image_scales, paths.images))
+    horizontal_scale = inverse_direct - (direct_scale * inverse_direct - image_horizontal) / wavenumber
+    direct_vertical = paths.offset[..., 2] * (inverse_direct - direct_scale * inverse_direct / wavenumber)
+    return horizontal_scale, direct_vertical, -image_vertical / wavenumber
 
 
 def phasor_range_difference_linearized(
@@ -268,31 +298,20 @@ def phasor_range_difference_linearized(
     source dd = u . dp and dr_i = (S u_i) . dp (S the image's mirror, diag(1, 1, -1)); with respect to
     the receiver dd = -u . dr and dr_i = -u_i . dr (u, u_i the unit vectors from the receiver). The
     images share the direct path's horizontal offset, so each gradient's horizontal part is that offset
-    times one scalar (:func:`_phase_gradient_terms`).
+    times one scalar (:func:`_apparent_range_gradient`).
     """
     gains = (surface_reflection, bed_reflection)
     mobile_paths, fixed_paths = (_receiver_paths(source, r, water_depth, gains, wavenumber) for r in (mobile, fixed))
     range_difference = _apparent_range_difference(mobile_paths, fixed_paths, wavenumber)
-    source_parts, mobile_part = [], None
-    for paths, is_mobile in ((mobile_paths, True), (fixed_paths, False)):
-        along_direct, along_images = _phase_gradient_terms(paths, wavenumber)
-        inverse = 1.0 / paths.direct
-        image_horizontal = sum(b / image[1] for b, image in zip(along_images, paths.images))
-        image_vertical = sum(b * image[0] / image[1] for b, image in zip(along_images, paths.images))
-        # d(d - phi / k)/d source: the horizontal offset times one scalar, and the vertical component.
-        horizontal = inverse - (along_direct * inverse - image_horizontal) / wavenumber
-        radial = paths.offset[..., 2] * (inverse - along_direct * inverse / wavenumber)
-        source_parts.append((paths.offset, horizontal, radial - image_vertical / wavenumber))
-        if is_mobile:  # d/d receiver: the direct terms change sign, the images' do not (their offsets do not mirror)
-            mobile_part = (horizontal, -radial - image_vertical / wavenumber)
-    (offset_m, horizontal_m, vertical_m), (offset_f, horizontal_f, vertical_f) = source_parts
-    assert mobile_part is not None
+    scale_m, direct_m, images_m = _apparent_range_gradient(mobile_paths, wavenumber)
+    scale_f, direct_f, images_f = _apparent_range_gradient(fixed_paths, wavenumber)
+    offset_m, offset_f = mobile_paths.offset, fixed_paths.offset
     source_gradient = np.empty(np.broadcast_shapes(offset_m.shape, offset_f.shape))
-    source_gradient[..., 0:2] = offset_m[..., 0:2] * horizontal_m[..., None] - offset_f[..., 0:2] * horizontal_f[..., None]
-    source_gradient[..., 2] = vertical_m - vertical_f
+    source_gradient[..., 0:2] = offset_m[..., 0:2] * scale_m[..., None] - offset_f[..., 0:2] * scale_f[..., None]
+    source_gradient[..., 2] = (direct_m + images_m) - (direct_f + images_f)
     mobile_gradient = np.empty(offset_m.shape)
-    mobile_gradient[..., 0:2] = -offset_m[..., 0:2] * mobile_part[0][..., None]
-    mobile_gradient[..., 2] = mobile_part[1]
+    mobile_gradient[..., 0:2] = -offset_m[..., 0:2] * scale_m[..., None]
+    mobile_gradient[..., 2] = -direct_m + images_m
     return range_difference, source_gradient, mobile_gradient
 
 

@@ -138,7 +138,7 @@ def _chained_jacobian(burst, model, states, white, local) -> np.ndarray:
     the prediction and stay constant along a trajectory: their columns are unit vectors."""
     count, dim = states.shape
     moving = dim - 2
-    motion = model.trajectory_jacobian(states, burst.times - burst.times[-1], STEP)  # (C, K, 6, moving)
+    motion = model.trajectory_jacobian(states, burst.times - burst.times[-1])  # (C, K, 6, moving)
     jacobian = np.zeros(local.shape[:-1] + (dim,))
     jacobian[..., :moving] = local @ motion
     jacobian[..., 0, dim - 2] = jacobian[..., 1, dim - 1] = 1.0
