@@ -49,6 +49,7 @@ from aasl_gym.measurement_models import (
     signal_noise_sd,
 )
 from aasl_gym.motion import SourceState, advance_source
+from aasl_gym.patrols import REFERENCES
 from tracker_check import MATCHED  # run as a script: benchmarks/ is on sys.path
 
 
@@ -223,6 +224,7 @@ def main(argv: list[str] | None = None) -> None:
         default="direct",
         help="measurement model: the direct path, or the world's own (phasor with reflections)",
     )
+    parser.add_argument("--patrol", default="helix", choices=sorted(REFERENCES), help="the scripted patrol")
     parser.add_argument("--out", default=None, help="markdown file for the table")
     parser.add_argument(
         "--tracker",
@@ -241,10 +243,10 @@ def main(argv: list[str] | None = None) -> None:
 
     def rows():
         for motion in args.motions:
-            env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol="helix")
+            env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol=args.patrol)
             if args.tracker:
                 matched = base.replace(source={"motion": motion}, filter={"motion_model": MATCHED[motion]})
-                tracker_env = AASLEnv(matched, patrol="helix")
+                tracker_env = AASLEnv(matched, patrol=args.patrol)
             times, efficient, successes, squared = [], [], [], np.zeros(2)
             for seed in tqdm(range(args.seed, args.seed + args.episodes), desc=motion, unit="ep", leave=False):
                 covariance = episode_covariance(env, seed, args.model)
