@@ -308,6 +308,8 @@ class FilterConfig:
     sheet_check_interval: float = 10.0
     # each sheet check fits the likeliest filter's whole track since its start and the filter adopts the fit
     track_fit: bool = True
+    # phasor model: where that fit explains the track poorly, search a lattice about the filter (aasl_gym.search)
+    track_search: bool = True
     frame_samples: int = 3  # signal mode, phasor model: times per frame the model is averaged over (1: the centre)
 
     def __post_init__(self) -> None:
@@ -330,7 +332,9 @@ class FilterConfig:
             isinstance(self.window_fit, bool), "filter.window_fit", f"must be true or false, got {self.window_fit!r}"
         )
         _non_negative(self.sheet_check_interval, "filter.sheet_check_interval")
-        require(isinstance(self.track_fit, bool), "filter.track_fit", f"must be true or false, got {self.track_fit!r}")
+        for name in ("track_fit", "track_search"):
+            value = getattr(self, name)
+            require(isinstance(value, bool), f"filter.{name}", f"must be true or false, got {value!r}")
         require(
             isinstance(self.frame_samples, int) and self.frame_samples >= 1,
             "filter.frame_samples",

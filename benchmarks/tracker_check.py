@@ -1,8 +1,10 @@
-"""Quick tracker check: success at 1 m, lost tracks, re-initializations and seconds per episode of the
-helix on a few seeds: ``signal`` is the default world as shipped, ``default`` the same world and ``free`` the
-free field with geometric measurements (as in the tracker issue).
+"""Quick tracker check: success at 1 m, lost tracks, re-initializations and seconds per episode of a
+scripted patrol (the helix unless ``--patrol`` says otherwise) on a few seeds: ``signal`` is the default
+world as shipped, ``default`` the same world and ``free`` the free field with geometric measurements (as in
+the tracker issue).
 
     python benchmarks/tracker_check.py default:static,cv:10000:16 free:cv,ca:1000:20 [--set filter.window_fit=false]
+        [--patrol spiral]
 
 Each WORLD:MOTIONS:FIRST_SEED:COUNT runs COUNT seeds per motion, the filter's motion model matched to
 the source's; ``--set SECTION.KEY=JSON`` overrides a config field. Runs on two processes. For tuning on
@@ -23,6 +25,7 @@ WORLDS = {
     "default": {"measurement": {"mode": "geometric"}},
     "free": {"world": {"reflections": False}, "filter": {"multipath": "none"}, "measurement": {"mode": "geometric"}},
 }
+PATROLS = ("helix", "spiral", "lawnmower", "circle")
 MATCHED = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv"}
 
 
@@ -31,11 +34,11 @@ def episode(job: tuple) -> dict:
 
     import aasl_gym  # noqa: F401  (registers the ids in a spawned worker)
 
-    world, motion, seed, overrides = job
+    world, motion, seed, overrides, patrol = job
     config = {section: dict(fields) for section, fields in WORLDS[world].items()}
     for section, fields in overrides.items():
         config.setdefault(section, {}).update(fields)
-    env = gym.make("AASL-Helix-v0", config=config, source_motion=motion, filter_model=MATCHED[motion])
+    env = gym.make(f"AASL-{patrol.capitalize()}-v0", config=config, source_motion=motion, filter_model=MATCHED[motion])
     start = time.perf_counter()
     env.reset(seed=seed)
     done = False
@@ -84,9 +87,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="WORLD:MOTIONS:FIRST_SEED:COUNT, WORLD in " + ", ".join(WORLDS))
     parser.add_argument("--set", nargs="*", default=[], help="SECTION.KEY=JSON config overrides")
+    parser.add_argument("--patrol", default="helix", choices=PATROLS, help="the pattern that drives the receiver")
     args = parser.parse_args()
     overrides = parse_overrides(args.set)
-    jobs = [(*job, overrides) for job in parse_runs(args.runs)]
+    jobs = [(*job, overrides, args.patrol) for job in parse_runs(args.runs)]
     with Pool(2) as pool:
         rows = pool.map(episode, jobs, chunksize=1)
     for world in WORLDS:

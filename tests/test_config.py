@@ -64,6 +64,7 @@ def test_default_yaml_is_the_default():
         ({"signal": {"detection_snr_db": float("inf")}}, r"signal\.detection_snr_db: must be finite"),
         ({"filter": {"sheet_check_interval": -1}}, r"filter\.sheet_check_interval: must be a finite number >= 0"),
         ({"filter": {"track_fit": "yes"}}, r"filter\.track_fit: must be true or false, got 'yes'"),
+        ({"filter": {"track_search": 1}}, r"filter\.track_search: must be true or false, got 1"),
         ({"initializer": {"search_spacing": 0.1}}, r"initializer\.search_spacing: must be 0 \(no search\) or a finite"),
         ({"initializer": {"search_spacing": -2}}, r"initializer\.search_spacing: must be 0 \(no search\)"),
         ({"initializer": {"reseed_search_quantile": 1.0}}, r"initializer\.reseed_search_quantile: must be in \[0, 1\)"),
