@@ -308,7 +308,7 @@ class FilterConfig:
     sheet_check_interval: float = 10.0
     # each sheet check fits the likeliest filter's whole track since its start and the filter adopts the fit
     track_fit: bool = True
-    # phasor model: where that fit explains the track poorly, search a lattice about the filter (aasl_gym.search)
+    # phasor model, with track_fit: where that fit explains the track poorly, search about the filter (aasl_gym.search)
     track_search: bool = True
     frame_samples: int = 3  # signal mode, phasor model: times per frame the model is averaged over (1: the centre)
 

@@ -95,6 +95,24 @@ class MotionModel:
         phase = np.mod(free_depth - low, 2 * span)
         return low, span, phase, phase > span
 
+    def _vertical_flip(self) -> np.ndarray:
+        """(n,) signs of a reflection off a depth bound: -1 on z and the vertical velocity and acceleration."""
+        flip = np.ones(self.dim)
+        flip[self._vertical()] = -1.0
+        return flip
+
+    def fold_states(self, states: np.ndarray, information: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """States (C, n) and their information (C, n, n) as a folded trajectory sees them (:meth:`trajectory`
+        folds every sample, the one the states are given at included): copies, each state folded into the
+        depth bounds and its information mirrored with it. A state beyond a bound and its mirror within
+        explain a window alike, but only the mirror is where the source can be. Unchanged without folding."""
+        states, information = np.array(states, dtype=float), np.array(information, dtype=float)
+        if not self.fold_trajectories:
+            return states, information
+        mirrored = self._fold_phase(states[:, 2])[3]
+        signs = np.where(mirrored[:, None], self._vertical_flip(), 1.0)
+        return self._fold(states), information * signs[:, :, None] * signs[:, None, :]
+
     def reflect(self, x: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A filter's mean and covariance once its mean is beyond a depth bound and moving away, by more
         than twice its sd (a prediction or an update took it there): the mean reflected as the source
@@ -107,8 +125,7 @@ class MotionModel:
         outward = 2 * np.sqrt(covariance[5, 5])
         if not ((x[2] > high and x[5] > outward) or (x[2] < low and x[5] < -outward)):
             return x, covariance
-        flip = np.ones(self.dim)
-        flip[self._vertical()] = -1.0
+        flip = self._vertical_flip()
         reflected = x * flip
         reflected[2] += 2 * (high if x[2] > high else low)
         return reflected, covariance * np.outer(flip, flip)

@@ -120,20 +120,25 @@ def solve_velocity(
 
 def search_track(burst: Burst, model: MotionModel, state: np.ndarray, window_prior) -> WindowFit:
     """Fits (at most ``TRACK_KEEP[-1]``) of the whole ``burst`` - a track, with the filter's own model - from a
-    lattice about ``state`` (n,), the filter's, at its velocity and at rest: each start is fitted on the
-    last ``TRACK_WINDOWS`` seconds in turn, the best ``TRACK_KEEP`` distinct fits of each going on to the
-    next, and at last to the whole burst. A long phasor window's basin is a few mm/s in velocity and a few
-    decimetres in position: a start a metre off the source in a wrong dip stays there, while on 15 s the
-    basins are wide enough for the lattice's cells to reach the truth's."""
+    lattice about ``state`` (n,), the filter's, at its motion and at rest: each start is fitted on the last
+    ``TRACK_WINDOWS`` seconds in turn, the best ``TRACK_KEEP`` distinct fits of each going on to the next,
+    and at last to the whole burst. A long phasor window's basin is a few mm/s in velocity and a few
+    decimetres in position: a filter a metre off the source in a wrong dip stays there, while on 15 s the
+    basins are wide enough for the lattice's cells to reach the truth's. The fits are folded into the
+    ``model``'s depth bounds (:meth:`~aasl_gym.filters.MotionModel.fold_states`) after every window: near the
+    surface the lattice reaches beyond them, where a fit lands on a mirror twin of one within."""
     lattice = local_lattice(state[0:3], TRACK_HALF_WIDTH, TRACK_SPACING)
     starts = np.repeat(state[None], 2 * len(lattice), axis=0)
     starts[:, 0:3] = np.concatenate([lattice, lattice])
-    starts[len(lattice) :, 3:6] = 0.0
+    starts[len(lattice) :, 3:-2] = 0.0  # at rest: no velocity, acceleration or turn
     prior_mean, prior_sd = window_prior(starts)
     elapsed = np.abs(burst.times - burst.times[-1])
     for seconds, keep in zip(TRACK_WINDOWS, TRACK_KEEP):
         window = select_samples(burst, elapsed <= seconds + 1e-9)
         fit = fit_window(window, model, starts, prior_mean, prior_sd, robust=True)
-        kept = distinct_best(fit.states, fit.costs, keep)
-        starts, prior_mean = fit.states[kept], prior_mean[kept]
-    return fit_window(burst, model, starts, prior_mean, prior_sd, robust=True)
+        folded = model.fold_states(fit.states, fit.information)[0]
+        kept = distinct_best(folded, fit.costs, keep)
+        starts, prior_mean = folded[kept], prior_mean[kept]
+    fit = fit_window(burst, model, starts, prior_mean, prior_sd, robust=True)
+    states, information = model.fold_states(fit.states, fit.information)
+    return WindowFit(states, fit.costs, information)

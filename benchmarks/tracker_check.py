@@ -20,12 +20,13 @@ from multiprocessing import Pool
 
 import numpy as np
 
+from aasl_gym.patrols import REFERENCES
+
 WORLDS = {
     "signal": {},  # the default world as shipped: the acoustic front end, reflections, the phasor filter
     "default": {"measurement": {"mode": "geometric"}},
     "free": {"world": {"reflections": False}, "filter": {"multipath": "none"}, "measurement": {"mode": "geometric"}},
 }
-PATROLS = ("helix", "spiral", "lawnmower", "circle")
 MATCHED = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv"}
 
 
@@ -87,7 +88,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="WORLD:MOTIONS:FIRST_SEED:COUNT, WORLD in " + ", ".join(WORLDS))
     parser.add_argument("--set", nargs="*", default=[], help="SECTION.KEY=JSON config overrides")
-    parser.add_argument("--patrol", default="helix", choices=PATROLS, help="the pattern that drives the receiver")
+    parser.add_argument("--patrol", default="helix", choices=sorted(REFERENCES), help="the scripted patrol")
     args = parser.parse_args()
     overrides = parse_overrides(args.set)
     jobs = [(*job, overrides, args.patrol) for job in parse_runs(args.runs)]
@@ -100,7 +101,7 @@ def main() -> None:
                 continue
             converged = [row["convergence_time"] for row in group if np.isfinite(row["convergence_time"])]
             print(
-                f"{world:7s} {motion:6s} success {sum(row['success'] for row in group)}/{len(group)}"
+                f"{args.patrol} {world:7s} {motion:6s} success {sum(row['success'] for row in group)}/{len(group)}"
                 f"  lost (>5 m) {sum(row['final_error'] > 5 for row in group)}"
                 f"  median re-inits {np.median([row['reinitializations'] for row in group]):.0f}"
                 f"  mean convergence {np.mean(converged) if converged else float('nan'):.1f} s"

@@ -1,15 +1,18 @@
 """The tracker: its hypothesis bank against independent truths (the true whole-period offset, the truth trajectory)."""
 
+import copy
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
+from aasl_gym import estimator
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.initializers import Burst
 from aasl_gym.measurement_models import direct_measurement
 from aasl_gym.search import TRACK_SEARCH_GATE
-from aasl_gym.window import fit_window
+from aasl_gym.window import WindowFit, fit_window
 
 STUDY = EnvConfig().replace(world={"reflections": False}, filter={"multipath": "none"}, source={"motion": "static"})
 
@@ -355,20 +358,30 @@ def test_the_track_search_leaves_a_wrong_dip_of_the_whole_track():
     """The default world, the spiral, a parked source under the straight-line filter (tuning seed 20015).
     Without the track search the filter drifts into a wrong dip of its whole track's phasor fit: at 88 s it
     is more than 0.7 m off, and the track refit from its own state stays there, explaining the track poorly
-    (robust cost per residual above ``TRACK_SEARCH_GATE``). The track search about the filter ends within
-    0.1 m of the source, its fit explaining the track below that gate."""
+    (robust cost per residual above ``TRACK_SEARCH_GATE``). With ``filter.track_search`` the same refit
+    searches about the filter and adopts a fit within 0.1 m of the source; a search whose finds all cost
+    more than the refit leaves the refit's fit."""
     config = EnvConfig().replace(source={"motion": "static"}, filter={"track_search": False})
     env = AASLEnv(config, patrol="spiral")
     env.reset(seed=20015)
     for _ in range(440):
         info = env.step(np.zeros(3))[4]
-    tracker = env.tracker
-    assert info["position_error"] > 0.7
-    burst = tracker._burst(tracker._samples_since(tracker.window_start), fine=True)
-    state = tracker.ukf.x.copy()
-    refit = fit_window(burst, tracker.track_model, state[None], *tracker._window_prior(state[None]), robust=True)
-    assert np.linalg.norm(refit.states[0, 0:3] - info["source_position"]) > 0.7
+    assert info["position_error"] > 0.7 and env.tracker.bank[0].resolved
+    burst = env.tracker._burst(env.tracker._samples_since(env.tracker.window_start), fine=True)
+    state = env.tracker.ukf.x.copy()
+    prior = env.tracker._window_prior(state[None])
+    refit = fit_window(burst, env.tracker.track_model, state[None], *prior, robust=True)
     assert refit.costs[0] > TRACK_SEARCH_GATE * burst.measurements.size
-    found, best = tracker._search_track(burst, state, refit, 0)
-    assert np.linalg.norm(found.states[best, 0:3] - info["source_position"]) < 0.1
-    assert found.costs[best] < TRACK_SEARCH_GATE * burst.measurements.size
+
+    def refitted(search: bool) -> float:
+        tracker = copy.deepcopy(env.tracker)
+        tracker.config = tracker.config.replace(filter={"track_search": search})
+        tracker._refit_track(info["time"])
+        return float(np.linalg.norm(tracker.ukf.x[0:3] - info["source_position"]))
+
+    assert refitted(False) > 0.7
+    assert refitted(True) < 0.1
+    with pytest.MonkeyPatch.context() as patch:  # a search that finds nothing better
+        worse = WindowFit(refit.states + np.eye(8)[0], refit.costs + 1.0, refit.information)
+        patch.setattr(estimator, "search_track", lambda *args: worse)
+        assert refitted(True) > 0.7

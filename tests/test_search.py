@@ -1,6 +1,7 @@
 """The phasor search against the simulated truth: from a lattice that misses the source by metres,
-the short window's fine fit lands on it, and the velocity solve finds a near-surface source's velocity
-from rest; the lattices and the diversity cut by their definitions."""
+the short window's fine fit lands on it, the velocity solve finds a near-surface source's velocity
+from rest, and the track search finds a near-surface source within the water column; the lattices and
+the diversity cut by their definitions."""
 
 import itertools
 
@@ -19,6 +20,7 @@ from aasl_gym.search import (
     local_lattice,
     prior_lattice,
     search,
+    search_track,
     solve_velocity,
 )
 
@@ -130,3 +132,26 @@ def test_distinct_best_keeps_the_better_of_close_states_best_first():
     kept = distinct_best(states, costs, limit=3)
     assert kept.tolist() == [3, 1, 2]
     assert distinct_best(states, costs, limit=1).tolist() == [3]
+
+
+def test_the_track_search_stays_in_the_water_column_near_the_surface():
+    """A CV source 3 m below the surface (the slab's top at 2 m), 40 s of the frame model heard from a helix
+    at 7-11 m, and a filter 1 m above and 0.8 m beside it: the track search's lattice reaches above the slab,
+    where each fit of the folded trajectories has a mirror twin within that explains the window alike. Every
+    fit returned lies within the slab, and the best is the source (within 0.1 m)."""
+    times = np.arange(0.2, 40.01, 0.2)
+    truth = np.array([6.0, -9.0, -3.0, 0.4, -0.3, 0.0, 0.0, 0.0])
+    straight = make_motion_model(FilterConfig(motion_model="cv"))
+    track = straight.trajectory(truth[None], times - times[-1])[0]  # the state given at the window's end
+    angle, phase = times / 15.0, 0.2 * times
+    mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), -9.0 - 2.0 * np.cos(phase)], -1)
+    mobile_velocity = np.stack([-np.sin(angle), np.cos(angle), 0.4 * np.sin(phase)], -1)
+    z = FRAME(track[:, 0:3], track[:, 3:6], mobile, mobile_velocity, FIXED)
+    z = z + np.sqrt(np.diag(NOISE)) * np.random.default_rng(0).normal(size=z.shape)
+    burst = Burst(times, z, mobile, mobile_velocity, FIXED, NOISE, WAVELENGTH, FRAME, WAVELENGTH, (0.05, 0.02), True)
+    folding = make_motion_model(FilterConfig(motion_model="cv"), (-58.0, -2.0), fold_trajectories=True)
+    filter_state = truth + np.array([0.8, 0.0, 1.0, 0, 0, 0, 0, 0])
+    found = search_track(burst, folding, filter_state, window_prior)
+    assert np.all(found.states[:, 2] <= -2.0 + 1e-9)
+    best = int(np.argmin(found.costs))
+    assert np.linalg.norm(found.states[best, 0:3] - truth[0:3]) < 0.1
