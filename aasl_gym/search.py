@@ -47,11 +47,11 @@ HELD_POSITION_SD = 0.5  # m: the position prior of the velocity solve, about the
 SOLVE_ITERATIONS = 4  # Levenberg-Marquardt iterations of that solve, on each of its windows
 SOLVE_WINDOWS = (0.6, 1.2, 2.0, 3.0)  # s: the velocity solve's shorter windows before the whole one, in turn
 DISTINCT = 0.3  # m: fits closer than this are one candidate
-# The track search. Robust cost per residual of a whole-track refit above which it runs, and below which its
-# find is adopted: converged filters' refits cost 0.51-0.69 (16 spiral-static tuning seeds), failing ones 0.64-3.1.
+# The track search. Robust cost per residual of a whole-track refit above which it runs (its find is adopted where
+# it beats the refit): converged filters' refits cost 0.51-0.69 (16 spiral-static tuning seeds), failing ones 0.64-3.1.
 TRACK_SEARCH_GATE = 0.75
 TRACK_HALF_WIDTH = 3.0  # m: its cube about the filter
-TRACK_SPACING = 1.5  # m: its lattice (125 points, each at the filter's velocity and at rest)
+TRACK_SPACING = 1.5  # m: its lattice (125 points, each at the filter's motion and at rest)
 TRACK_WINDOWS = (15.0, 40.0)  # s: the windows its starts are fitted on in turn before the whole track
 TRACK_KEEP = (32, 8)  # distinct fits of each of those windows that go on to the next
 
