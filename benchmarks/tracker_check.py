@@ -21,12 +21,14 @@ from multiprocessing import Pool
 import numpy as np
 
 from aasl_gym.patrols import REFERENCES
+from aasl_gym.registration import ENV_IDS
 
 WORLDS = {
     "signal": {},  # the default world as shipped: the acoustic front end, reflections, the phasor filter
     "default": {"measurement": {"mode": "geometric"}},
     "free": {"world": {"reflections": False}, "filter": {"multipath": "none"}, "measurement": {"mode": "geometric"}},
 }
+PATROL_IDS = {pattern: env_id for env_id, pattern in ENV_IDS.items() if pattern in REFERENCES}  # scripted patrols
 MATCHED = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv"}
 
 
@@ -39,7 +41,7 @@ def episode(job: tuple) -> dict:
     config = {section: dict(fields) for section, fields in WORLDS[world].items()}
     for section, fields in overrides.items():
         config.setdefault(section, {}).update(fields)
-    env = gym.make(f"AASL-{patrol.capitalize()}-v0", config=config, source_motion=motion, filter_model=MATCHED[motion])
+    env = gym.make(PATROL_IDS[patrol], config=config, source_motion=motion, filter_model=MATCHED[motion])
     start = time.perf_counter()
     env.reset(seed=seed)
     done = False
@@ -88,7 +90,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", help="WORLD:MOTIONS:FIRST_SEED:COUNT, WORLD in " + ", ".join(WORLDS))
     parser.add_argument("--set", nargs="*", default=[], help="SECTION.KEY=JSON config overrides")
-    parser.add_argument("--patrol", default="helix", choices=sorted(REFERENCES), help="the scripted patrol")
+    parser.add_argument("--patrol", default="helix", choices=sorted(PATROL_IDS), help="the scripted patrol")
     args = parser.parse_args()
     overrides = parse_overrides(args.set)
     jobs = [(*job, overrides, args.patrol) for job in parse_runs(args.runs)]
