@@ -311,6 +311,9 @@ class FilterConfig:
     # phasor model, with track_fit: where that fit explains the track poorly, search about the filter (aasl_gym.search)
     track_search: bool = True
     frame_samples: int = 3  # signal mode, phasor model: times per frame the model is averaged over (1: the centre)
+    # m/s, ca only: the top speed at which a constant acceleration stops, as the world's CA sources do;
+    # matched: the world's source.max_speed; null: none
+    speed_limit: float | str | None = "matched"
 
     def __post_init__(self) -> None:
         require_choice(self.motion_model, FILTER_MODELS, "filter.motion_model")
@@ -342,6 +345,14 @@ class FilterConfig:
         )
         require(
             self.recovery_inflation >= 1, "filter.recovery_inflation", f"must be >= 1, got {self.recovery_inflation}"
+        )
+        limit = self.speed_limit
+        require(
+            limit is None
+            or limit == "matched"
+            or (isinstance(limit, (int, float)) and not isinstance(limit, bool) and math.isfinite(limit) and limit > 0),
+            "filter.speed_limit",
+            f"must be 'matched', a finite speed > 0 (m/s) or null, got {limit!r}",
         )
 
 
@@ -540,6 +551,12 @@ class EnvConfig:
         return "phasor" if self.world.reflections else "none"
 
     @property
+    def filter_speed_limit(self) -> float | None:
+        """The CA filter's top speed (m/s), ``matched`` resolved against the world: its sources' ``max_speed``."""
+        limit = self.filter.speed_limit
+        return self.source.max_speed if limit == "matched" else limit  # type: ignore[return-value]
+
+    @property
     def dt(self) -> float:
         """Step length, s."""
         return 1.0 / self.measurement.rate
@@ -589,8 +606,16 @@ def _coerce(value: Any, annotation: Any, path: str) -> Any:
         options = typing.get_args(annotation)
         if value is None and type(None) in options:
             return None
-        (inner,) = [a for a in options if a is not type(None)]
-        return _coerce(value, inner, path)
+        kinds = [a for a in options if a is not type(None)]
+        if len(kinds) == 1:
+            return _coerce(value, kinds[0], path)
+        for kind in kinds:  # e.g. a speed or ``matched``: the first type the value is
+            try:
+                return _coerce(value, kind, path)
+            except ConfigError:
+                continue
+        names = " or ".join(getattr(kind, "__name__", str(kind)) for kind in kinds)
+        raise ConfigError(f"{path}: must be a {names}, got {value!r}")
     if origin is tuple:
         require(isinstance(value, (list, tuple)), path, f"must be a list, got {value!r}")
         inner = typing.get_args(annotation)

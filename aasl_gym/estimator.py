@@ -190,11 +190,14 @@ class SourceTracker:
         # yet under the phasor model, whose tracks near the surface it unsettled (static sources, tuning
         # seeds 10000-10019: 10-11 of 20 found against 13).
         depth_bounds = None if self.ripple else (region.z_min, region.z_max)
-        self.model = make_motion_model(f, depth_bounds, fold_trajectories=True)
+        limit = config.filter_speed_limit
+        self.model = make_motion_model(f, depth_bounds, fold_trajectories=True, speed_limit=limit)
         # A whole track does reflect, even under the phasor model: its fits fold the trajectories (a source that
         # bounced off the surface margin 50 s ago otherwise pulls the fit metres off, and the robust cost hides it).
         bounds = (region.z_min, region.z_max)
-        self.track_model = make_motion_model(f, bounds, fold_trajectories=True) if self.ripple else self.model
+        self.track_model = (
+            make_motion_model(f, bounds, fold_trajectories=True, speed_limit=limit) if self.ripple else self.model
+        )
         # LC-MAP fits the filter's motion model: straight lines, turns or a constant acceleration.
         self.initializer = make_initializer(config.initializer.name, config.initializer, region, self.model.name)
         self.reinitializer = LCMAPInitializer(config.initializer, region, self.model.name)
@@ -285,7 +288,7 @@ class SourceTracker:
         was chosen (``resolved``, by a window fit or a lattice): it gets the correction at its
         mean for every sigma point, and the correction's spread over the sigma points as noise instead.
         """
-        position, velocity = sigmas[..., 0:3], sigmas[..., 3:6]
+        position, velocity = sigmas[..., 0:3], self.model.velocity(sigmas)
         z = self.measurement_function(position, velocity, mobile, mobile_velocity, self.fixed)
         noise = np.zeros((len(sigmas), 2, 2))
         coarse = np.zeros(len(sigmas), dtype=bool)
@@ -407,7 +410,7 @@ class SourceTracker:
         is weighed with the state's own R_eff there (the navigation term depends on where the source is);
         a robust burst sums the soft-L1 loss instead of the squares."""
         whitened = whitened_residuals(burst, self.model, states)
-        velocity_prior = np.sum(states[:, 3:6] ** 2, axis=1) / self.config.initializer.velocity_prior_sd**2
+        velocity_prior = np.sum(self.model.velocity(states) ** 2, axis=1) / self.config.initializer.velocity_prior_sd**2
         return np.sum(robust_loss(whitened**2, burst.robust), axis=(1, 2)) + velocity_prior
 
     def _reseed(self, time: float, rng: np.random.Generator, inflation: float = 1.0, length: int | None = None) -> bool:
@@ -765,7 +768,7 @@ class SourceTracker:
     def _implausible(self, ukf: UnscentedKalmanFilter, time: float) -> bool:
         if not np.all(np.isfinite(ukf.x)):
             return True
-        p, v = ukf.x[0:3], ukf.x[3:6]
+        p, v = ukf.x[0:3], self.model.velocity(ukf.x)
         region = self._reachable(time)
         slack = 10.0  # m beyond the reachable region before an estimate counts as impossible
         return bool(
@@ -987,7 +990,7 @@ class SourceTracker:
     @property
     def velocity(self) -> np.ndarray:
         """The likeliest hypothesis's velocity (m/s); the prior's mean until the filter starts."""
-        return (self.ukf.x if self.initialized else self.prior_mean)[3:6].copy()
+        return self.model.velocity(self.ukf.x).copy() if self.initialized else self.prior_mean[3:6].copy()
 
     @property
     def position_covariance(self) -> np.ndarray:

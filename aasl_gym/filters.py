@@ -3,12 +3,15 @@
 State layouts (positions m, velocities m/s, b_p m, b_v m/s):
 
 * ``cv``   (8):  [p(3), v(3), b_p, b_v]                 constant velocity, white acceleration
-* ``ca``   (11): [p(3), v(3), a(3), b_p, b_v]           constant acceleration, white jerk
+* ``ca``   (11): [p(3), v(3), a(3), b_p, b_v]           constant acceleration, white jerk; with a
+  speed limit the source stops accelerating at that speed, and v is the velocity it would have had
+  without the limit (:class:`ConstantAcceleration`)
 * ``ctrv`` (9):  [p(3), v(3), omega, b_p, b_v]          horizontal coordinated turn at rate omega (rad/s)
 
 Every layout keeps p in 0:3, v in 3:6 and the two measurement biases last, so the measurement function
-is shared. The UKF follows filterpy's ``UnscentedKalmanFilter`` step for step (a test runs both): the
-predict step redraws the sigma points from the predicted mean and covariance, and the update uses them.
+is shared; it takes the source's velocity from :meth:`MotionModel.velocity`. The UKF follows filterpy's
+``UnscentedKalmanFilter`` step for step (a test runs both): the predict step redraws the sigma points from
+the predicted mean and covariance, and the update uses them.
 
 References: R. van der Merwe, "Sigma-Point Kalman Filters for Probabilistic Inference in Dynamic
 State-Space Models", 2004; Y. Bar-Shalom et al., "Estimation with Applications to Tracking and
@@ -59,12 +62,21 @@ class MotionModel:
     dim: int
 
     def __init__(
-        self, config: FilterConfig, depth_bounds: tuple[float, float] | None = None, fold_trajectories: bool = False
+        self,
+        config: FilterConfig,
+        depth_bounds: tuple[float, float] | None = None,
+        fold_trajectories: bool = False,
+        speed_limit: float | None = None,
     ):
         self.config = config
+        self.speed_limit = speed_limit  # m/s; only a constant acceleration reaches it (:class:`ConstantAcceleration`)
         self.depth_bounds = depth_bounds
         self.fold_trajectories = fold_trajectories and depth_bounds is not None
         self._noise_cache: dict[float, np.ndarray] = {}
+
+    def velocity(self, states: np.ndarray) -> np.ndarray:
+        """The source's velocity (..., 3; m/s) in states (..., n): components 3:6 (a view)."""
+        return states[..., 3:6]
 
     def transition(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         """States (..., n) ``dt`` seconds later (``dt`` a scalar or broadcasting beside the states),
@@ -138,6 +150,10 @@ class MotionModel:
         expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim))
         moved = self._advance(expanded, np.asarray(lags, dtype=float)[None, :, None])
         return self._fold(moved) if self.fold_trajectories else moved
+
+    def source_trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        """:meth:`trajectory` as a measurement sees it: the source's own velocity (:meth:`velocity`) in 3:6."""
+        return self.trajectory(states, lags)
 
     def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:  # pragma: no cover
         """d[p, v](t_k) / d x of :meth:`trajectory`: (C, K, 6, n - 2), over the components that move the
@@ -217,13 +233,97 @@ class ConstantVelocity(LinearMotionModel):
 
 
 class ConstantAcceleration(LinearMotionModel):
+    """Constant acceleration; with a ``speed_limit`` (m/s) as the world's CA sources move: the source
+    accelerates until its speed reaches the limit and keeps that velocity from then on.
+
+    A state at the limit then carries its acceleration on, and v (components 3:6) is the velocity the
+    source would have had without the limit, v + a s in s seconds, forward or back: the lag at which that
+    line leaves the ball of the limit's radius is when the source reached it, which a state given after
+    that time must know to run a window back. The source's own velocity is :meth:`velocity`."""
+
     name, dim = "ca", 11
 
     def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
+        if self.speed_limit is None:
+            return self._free_advance(states, dt)
+        unlimited, acceleration = states[..., 3:6], states[..., 6:9]
+        reached = self._limit_lag(states)[..., None]
+
+        def travelled(lag):  # m from the state's position after ``lag`` s, the velocity held from ``reached`` on
+            held = np.minimum(lag, reached)
+            return unlimited * held + 0.5 * acceleration * held**2 + (unlimited + acceleration * held) * (lag - held)
+
+        out = states.copy()
+        out[..., 0:3] += travelled(dt) - travelled(0.0)
+        out[..., 3:6] += dt * acceleration
+        return out
+
+    @staticmethod
+    def _free_advance(states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         out = states.copy()
         out[..., 0:3] += dt * states[..., 3:6] + 0.5 * dt**2 * states[..., 6:9]
         out[..., 3:6] += dt * states[..., 6:9]
         return out
+
+    def _limit_lag(self, states: np.ndarray) -> np.ndarray:
+        """s (...,): the lag (from the states' time) at which |v + a s| rises through the speed limit, the
+        later root of |v + a s|^2 = limit^2; +inf where it never does (no acceleration, or a line that
+        passes outside the limit's ball)."""
+        assert self.speed_limit is not None  # only a limited model reaches its limit
+        unlimited, acceleration = states[..., 3:6], states[..., 6:9]
+        square = np.einsum("...i,...i->...", acceleration, acceleration)
+        along = np.einsum("...i,...i->...", unlimited, acceleration)
+        discriminant = along**2 - square * (np.einsum("...i,...i->...", unlimited, unlimited) - self.speed_limit**2)
+        crosses = (square > 0) & (discriminant >= 0)
+        root = (np.sqrt(np.where(crosses, discriminant, 0.0)) - along) / np.where(crosses, square, 1.0)
+        return np.where(crosses, root, np.inf)
+
+    def velocity(self, states: np.ndarray) -> np.ndarray:
+        """The source's velocity (..., 3; m/s): v, or with a speed limit v less a times the time since the
+        source reached it."""
+        if self.speed_limit is None:
+            return states[..., 3:6]
+        since = np.minimum(self._limit_lag(states), 0.0)[..., None]
+        return states[..., 3:6] + states[..., 6:9] * since
+
+    def source_trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        trajectory = self.trajectory(states, lags)
+        if self.speed_limit is not None:
+            trajectory[..., 3:6] = self.velocity(trajectory)
+        return trajectory
+
+    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        """:meth:`MotionModel.trajectory_jacobian`: the free motion's (:class:`LinearMotionModel`), or with a
+        speed limit the limited one's in closed form. With r the lag the limit is reached at, h = min(s, r)
+        and h0 = min(0, r), the position is p + v s + a (h s - h^2 / 2 + h0^2 / 2) and the velocity v + a h;
+        r moves with the state as dr/dv = -w / (a . w), dr/da = r dr/dv (w = v + a r, at the limit)."""
+        if self.speed_limit is None:
+            return super().trajectory_jacobian(states, lags)
+        lags = np.asarray(lags, dtype=float)[None, :]  # (1, K)
+        unlimited, acceleration = states[:, None, 3:6], states[:, None, 6:9]  # (C, 1, 3)
+        reached = self._limit_lag(states)[:, None]  # (C, 1)
+        finite = np.isfinite(reached)
+        at_limit = np.where(finite, reached, 0.0)
+        held, held_now = np.minimum(lags, reached), np.minimum(at_limit, 0.0)  # (C, K), (C, 1)
+        limit_velocity = unlimited + acceleration * at_limit[..., None]
+        rising = np.sum(acceleration * limit_velocity, axis=-1)  # a . w > 0 where the limit is crossed
+        lag_rate = np.where(finite[..., None], -limit_velocity / np.where(finite, rising, 1.0)[..., None], 0.0)
+        # d(a h)/d[v, a] where h = r: a times dr/d[v, a], as (C, 1, 3, 6).
+        lag_gradient = np.concatenate([lag_rate, lag_rate * at_limit[..., None]], axis=-1)  # (C, 1, 6)
+        through_limit = acceleration[..., :, None] * lag_gradient[..., None, :]
+        after = lags > at_limit
+        capped = after & finite
+        eye = np.eye(3)
+        jacobian = np.zeros(held.shape + (6, self.dim - 2))
+        jacobian[..., 0:3, 0:3] = eye
+        jacobian[..., 0:3, 3:6] = lags[..., None, None] * eye
+        jacobian[..., 0:3, 6:9] = (held * lags - held**2 / 2 + held_now**2 / 2)[..., None, None] * eye
+        jacobian[..., 3:6, 3:6] = eye
+        jacobian[..., 3:6, 6:9] = held[..., None, None] * eye
+        position_weight = np.where(capped, lags - at_limit, 0.0) + held_now  # of (s - h) dh and h0 dh0
+        jacobian[..., 0:3, 3:9] += position_weight[..., None, None] * through_limit
+        jacobian[..., 3:6, 3:9] += capped[..., None, None] * through_limit
+        return self._folded(jacobian, states, lags[0])
 
     def _kinematic_noise(self, dt: float) -> np.ndarray:
         return np.kron(_white_noise_blocks(dt, 3), np.eye(3)) * self.config.jerk_psd
@@ -287,9 +387,14 @@ MOTION_MODELS: dict[str, type[MotionModel]] = {
 
 
 def make_motion_model(
-    config: FilterConfig, depth_bounds: tuple[float, float] | None = None, fold_trajectories: bool = False
+    config: FilterConfig,
+    depth_bounds: tuple[float, float] | None = None,
+    fold_trajectories: bool = False,
+    speed_limit: float | None = None,
 ) -> MotionModel:
-    return MOTION_MODELS[config.motion_model](config, depth_bounds, fold_trajectories)
+    """The filter's motion model (``config.motion_model``); ``speed_limit`` (m/s) is the top speed a
+    constant acceleration stops at (:attr:`~aasl_gym.config.EnvConfig.filter_speed_limit`; None: none)."""
+    return MOTION_MODELS[config.motion_model](config, depth_bounds, fold_trajectories, speed_limit)
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[np.ndarray, np.ndarray, float]:

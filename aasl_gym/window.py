@@ -56,8 +56,9 @@ class WindowFit:
 
 
 def _trajectory(burst: Burst, model: MotionModel, states: np.ndarray) -> np.ndarray:
-    """Each state (C, n), given at the burst's last sample, run back to every sample: (C, K, n)."""
-    return model.trajectory(states, burst.times - burst.times[-1])
+    """Each state (C, n), given at the burst's last sample, run back to every sample: (C, K, n), with the
+    source's own velocity in 3:6 (:meth:`~aasl_gym.filters.MotionModel.source_trajectory`)."""
+    return model.source_trajectory(states, burst.times - burst.times[-1])
 
 
 def _measure(burst: Burst, trajectory: np.ndarray) -> np.ndarray:

@@ -8,6 +8,10 @@ default world and in the free field (issue 12; every re-start and re-seed includ
 step", one over the median step's duration, is printed beside it only to show what re-seeding
 costs); >= 5,000 steps/s in geometric mode (issue 2). filterpy's UKF on the same model is timed
 beside ours, so the ratio holds however fast the machine is.
+
+``--floor`` adds the paper's single filter (one hypothesis, no re-seeding, LC-MAP re-starts only) in each
+world: what a step costs before the tracker's bank, re-seeding, searches and track checks - the front
+end, one unscented filter with the world's model, the reward's Fisher information and the env itself.
 """
 
 from __future__ import annotations
@@ -90,11 +94,16 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--episodes", type=int, default=2, help="episodes per env timing")
     parser.add_argument("--signal-only", action="store_true", help="only the signal-mode whole-episode timings")
+    parser.add_argument("--floor", action="store_true", help="also the paper's single filter, without re-seeding")
     args = parser.parse_args()
-    for label, kwargs in (
+    worlds = [
         ("default world (reflections, phasor filter)", dict(source_motion="cv")),
         ("free field, direct-path filter", dict(reflections=False, multipath="none", source_motion="cv")),
-    ):
+    ]
+    if args.floor:
+        single = {"initializer": {"hypotheses": 1, "reseed_interval": 0.0}}
+        worlds += [(f"{label}, the paper's single filter", dict(kwargs, config=single)) for label, kwargs in worlds]
+    for label, kwargs in worlds:
         rates = [
             env_step_rates("AASL-Helix-v0", args.episodes, measurement="signal", **kwargs) for _ in range(args.repeats)
         ]

@@ -65,6 +65,9 @@ def test_default_yaml_is_the_default():
         ({"filter": {"sheet_check_interval": -1}}, r"filter\.sheet_check_interval: must be a finite number >= 0"),
         ({"filter": {"track_fit": "yes"}}, r"filter\.track_fit: must be true or false, got 'yes'"),
         ({"filter": {"track_search": 1}}, r"filter\.track_search: must be true or false, got 1"),
+        ({"filter": {"speed_limit": "fast"}}, r"filter\.speed_limit: must be 'matched', a finite speed > 0"),
+        ({"filter": {"speed_limit": 0}}, r"filter\.speed_limit: must be 'matched', a finite speed > 0"),
+        ({"filter": {"speed_limit": [1.5]}}, r"filter\.speed_limit: must be a float or str, got \[1\.5\]"),
         ({"initializer": {"search_spacing": 0.1}}, r"initializer\.search_spacing: must be 0 \(no search\) or a finite"),
         ({"initializer": {"search_spacing": -2}}, r"initializer\.search_spacing: must be 0 \(no search\)"),
         ({"initializer": {"reseed_search_quantile": 1.0}}, r"initializer\.reseed_search_quantile: must be in \[0, 1\)"),
@@ -135,6 +138,16 @@ def test_bad_signal_settings_are_named():
         gym.make("AASL-v0", measurement="signal", config={"signal": {"path": "slow"}})
     with pytest.raises(ConfigError, match=r"signal\.frame_duration: must not exceed one step"):
         gym.make("AASL-v0", config={"signal": {"frame_duration": 0.5}})
+
+
+@pytest.mark.parametrize("limit,expected", [("matched", 1.2), (2.5, 2.5), (None, None)])
+def test_the_ca_filter_stops_at_the_world_sources_top_speed_unless_told_otherwise(limit, expected):
+    """``filter.speed_limit: matched`` (the default) is the world's ``source.max_speed``, where its CA sources
+    stop accelerating; a speed is kept, null means none. Only the CA model uses it."""
+    config = {"source": {"max_speed": 1.2, "speed_range": [0.2, 1.0]}, "filter": {"speed_limit": limit}}
+    env = gym.make("AASL-Helix-v0", measurement="geometric", source_motion="ca", filter_model="ca", config=config)
+    assert env.unwrapped.config.filter_speed_limit == expected
+    assert env.unwrapped.tracker.model.speed_limit == expected
 
 
 @pytest.mark.parametrize("reflections,expected", [(True, "phasor"), (False, "none")])

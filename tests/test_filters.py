@@ -164,11 +164,12 @@ def test_folded_window_trajectories_reflect_where_the_world_does():
     np.testing.assert_allclose(back[:, 0:6], path, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["cv", "ca", "ctrv"])
-def test_trajectory_jacobian_matches_central_differences_across_folds(name, rng):
-    """d[p, v](t_k)/d x of a window's trajectories (closed form for the linear models, with the fold's
-    sign where a bound mirrored the state) against central differences of the trajectories themselves."""
-    model = MOTION_MODELS[name](FilterConfig(), (-12.0, -2.0), fold_trajectories=True)
+@pytest.mark.parametrize("name,speed_limit", [("cv", None), ("ca", None), ("ctrv", None), ("ca", 1.0)])
+def test_trajectory_jacobian_matches_central_differences_across_folds(name, speed_limit, rng):
+    """d[p, v](t_k)/d x of a window's trajectories, the source's own velocity (closed form for the linear
+    models, with the fold's sign where a bound mirrored the state; a speed-limited CA's moving with the time
+    it reaches the limit) against central differences of the trajectories themselves."""
+    model = MOTION_MODELS[name](FilterConfig(), (-12.0, -2.0), fold_trajectories=True, speed_limit=speed_limit)
     states = np.zeros((6, model.dim))
     states[:, 0:3] = rng.uniform([-20, -20, -11.5], [20, 20, -2.5], (6, 3))
     states[:, 3:6] = rng.uniform(-1.0, 1.0, (6, 3))
@@ -177,12 +178,49 @@ def test_trajectory_jacobian_matches_central_differences_across_folds(name, rng)
         states[:3, 6] = 0.0, 1e-7, 1.7e-6
     lags = np.linspace(-60.0, 0.0, 41)
     assert np.any(np.abs(model.trajectory(states, lags)[..., 5] - states[:, None, 5]) > 0)  # some fold
+    if speed_limit:  # at the limit before the window, within it, after it; one never accelerates
+        states[:4, 3:9] = [[1.8, 0, 0.1, 0.01, 0, 0], [1.2, 0, 0.1, 0.01, 0, 0], [0.6, 0, 0.1, 0.01, 0, 0], [0] * 6]
+        reached = model._limit_lag(states[:4])
+        assert reached[0] < -60 < reached[1] < 0 < reached[2] and reached[3] == np.inf
     step = 1e-6
     columns = []
     for j in range(model.dim - 2):
         shift = np.zeros(model.dim)
         shift[j] = step
-        ahead, behind = model.trajectory(states + shift, lags), model.trajectory(states - shift, lags)
+        ahead, behind = model.source_trajectory(states + shift, lags), model.source_trajectory(states - shift, lags)
         columns.append((ahead - behind)[..., 0:6] / (2 * step))
     closed_form = model.trajectory_jacobian(states, lags)
     np.testing.assert_allclose(closed_form, np.stack(columns, -1), rtol=1e-4, atol=1e-5)
+
+
+def test_a_speed_limited_ca_moves_as_the_world_source():
+    """A CA source the world stops accelerating at its top speed (motion.advance_source, a second
+    implementation), bouncing in a slab: a predict-only UKF of the speed-limited model started on it follows
+    it through the limit and three bounces, and the window trajectory run back from its end state retraces
+    the world's path. The world steps by 10 ms here: it stops at the end of the step in which it passes
+    the limit, the model at the instant."""
+    from aasl_gym.motion import Box, SourceState, advance_source
+
+    region = Box(np.inf, -12.0, -2.0)
+    model = MOTION_MODELS["ca"](
+        FilterConfig(jerk_psd=0.0), (region.z_min, region.z_max), fold_trajectories=True, speed_limit=1.2
+    )
+    source = SourceState(
+        "ca", np.array([3.0, 1.0, -3.013]), np.array([0.6, -0.2, 0.25]), np.array([0.012, 0.006, 0.0]), 0.0, 1.2
+    )
+    ukf = UnscentedKalmanFilter(model)
+    ukf.initialize(np.concatenate([source.position, source.velocity, source.acceleration, [0, 0]]), np.eye(11) * 1e-12)
+    path = [np.concatenate([source.position, source.velocity])]
+    for _ in range(600):
+        for _ in range(20):
+            source = advance_source(source, 0.01, region)
+        ukf.predict(0.2)
+        path.append(np.concatenate([source.position, source.velocity]))
+        np.testing.assert_allclose(ukf.x[0:3], source.position, atol=3e-3)
+        np.testing.assert_allclose(model.velocity(ukf.x), source.velocity, atol=1e-4)
+    path = np.array(path)
+    assert np.all(source.acceleration == 0) and np.isclose(np.linalg.norm(source.velocity), 1.2)  # it reached the limit
+    assert np.count_nonzero(np.diff(np.sign(path[:, 5]))) >= 3  # and bounced off the bounds three times
+    back = model.source_trajectory(ukf.x[None], 0.2 * np.arange(-(len(path) - 1), 1))[0]
+    np.testing.assert_allclose(back[:, 0:3], path[:, 0:3], atol=3e-3)
+    np.testing.assert_allclose(back[:, 3:6], path[:, 3:6], atol=1e-4)
