@@ -268,13 +268,13 @@ class ConstantAcceleration(LinearMotionModel):
     def _limit_lag(self, states: np.ndarray) -> np.ndarray:
         """s (...,): the lag (from the states' time) at which |v + a s| rises through the speed limit, the
         later root of |v + a s|^2 = limit^2; +inf where it never does (no acceleration, or a line that
-        passes outside the limit's ball)."""
+        passes outside the limit's ball or touches it)."""
         assert self.speed_limit is not None  # only a limited model reaches its limit
         unlimited, acceleration = states[..., 3:6], states[..., 6:9]
         square = np.einsum("...i,...i->...", acceleration, acceleration)
         along = np.einsum("...i,...i->...", unlimited, acceleration)
         discriminant = along**2 - square * (np.einsum("...i,...i->...", unlimited, unlimited) - self.speed_limit**2)
-        crosses = (square > 0) & (discriminant >= 0)
+        crosses = (square > 0) & (discriminant > 0)
         root = (np.sqrt(np.where(crosses, discriminant, 0.0)) - along) / np.where(crosses, square, 1.0)
         return np.where(crosses, root, np.inf)
 
@@ -311,8 +311,7 @@ class ConstantAcceleration(LinearMotionModel):
         # d(a h)/d[v, a] where h = r: a times dr/d[v, a], as (C, 1, 3, 6).
         lag_gradient = np.concatenate([lag_rate, lag_rate * at_limit[..., None]], axis=-1)  # (C, 1, 6)
         through_limit = acceleration[..., :, None] * lag_gradient[..., None, :]
-        after = lags > at_limit
-        capped = after & finite
+        capped = (lags > at_limit) & finite  # the samples after the source reached the limit
         eye = np.eye(3)
         jacobian = np.zeros(held.shape + (6, self.dim - 2))
         jacobian[..., 0:3, 0:3] = eye
