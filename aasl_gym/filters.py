@@ -28,6 +28,7 @@ from aasl_gym.config import FilterConfig
 from aasl_gym.motion import coordinated_turn_displacement
 
 BASE_DIM = 8  # [p, v, b_p, b_v]: the layout initializers produce
+LIMIT_GRAZE = 0.05  # a speed-limited CA's Jacobian: the least cosine between a and the velocity at the limit
 
 
 def _white_noise_blocks(dt: float, order: int) -> np.ndarray:
@@ -134,8 +135,8 @@ class MotionModel:
         if self.depth_bounds is None:
             return x, covariance
         low, high = self.depth_bounds
-        outward = 2 * np.sqrt(covariance[5, 5])
-        if not ((x[2] > high and x[5] > outward) or (x[2] < low and x[5] < -outward)):
+        outward, rising = 2 * np.sqrt(covariance[5, 5]), self.velocity(x)[2]
+        if not ((x[2] > high and rising > outward) or (x[2] < low and rising < -outward)):
             return x, covariance
         flip = self._vertical_flip()
         reflected = x * flip
@@ -266,17 +267,18 @@ class ConstantAcceleration(LinearMotionModel):
         return out
 
     def _limit_lag(self, states: np.ndarray) -> np.ndarray:
-        """s (...,): the lag (from the states' time) at which |v + a s| rises through the speed limit, the
-        later root of |v + a s|^2 = limit^2; +inf where it never does (no acceleration, or a line that
-        passes outside the limit's ball or touches it)."""
+        """s (...,): the lag (from the states' time) at which the source reached or reaches the speed limit:
+        the later root of |v + a s|^2 = limit^2. A line that never enters the limit's ball (no source could
+        have come from below the limit along it) is held where it passes closest, the lag its two roots meet
+        at as it stops crossing, so that the motion stays continuous in the state; +inf without acceleration."""
         assert self.speed_limit is not None  # only a limited model reaches its limit
         unlimited, acceleration = states[..., 3:6], states[..., 6:9]
         square = np.einsum("...i,...i->...", acceleration, acceleration)
         along = np.einsum("...i,...i->...", unlimited, acceleration)
         discriminant = along**2 - square * (np.einsum("...i,...i->...", unlimited, unlimited) - self.speed_limit**2)
-        crosses = (square > 0) & (discriminant > 0)
-        root = (np.sqrt(np.where(crosses, discriminant, 0.0)) - along) / np.where(crosses, square, 1.0)
-        return np.where(crosses, root, np.inf)
+        accelerating = square > 0
+        root = (np.sqrt(np.maximum(discriminant, 0.0)) - along) / np.where(accelerating, square, 1.0)
+        return np.where(accelerating, root, np.inf)
 
     def velocity(self, states: np.ndarray) -> np.ndarray:
         """The source's velocity (..., 3; m/s): v, or with a speed limit v less a times the time since the
@@ -285,6 +287,17 @@ class ConstantAcceleration(LinearMotionModel):
             return states[..., 3:6]
         since = np.minimum(self._limit_lag(states), 0.0)[..., None]
         return states[..., 3:6] + states[..., 6:9] * since
+
+    def embed(
+        self, state: np.ndarray, covariance: np.ndarray, extra_sd: float, extra_value: float | np.ndarray = 0.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`MotionModel.embed`; with a speed limit a velocity above it is taken down to it: a source at
+        its limit (an initializer's fit does not know the limit)."""
+        x, p = super().embed(state, covariance, extra_sd, extra_value)
+        speed = np.linalg.norm(x[3:6])
+        if self.speed_limit is not None and speed > self.speed_limit:
+            x[3:6] *= self.speed_limit / speed
+        return x, p
 
     def source_trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         trajectory = self.trajectory(states, lags)
@@ -295,8 +308,8 @@ class ConstantAcceleration(LinearMotionModel):
     def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         """:meth:`MotionModel.trajectory_jacobian`: the free motion's (:class:`LinearMotionModel`), or with a
         speed limit the limited one's in closed form. With r the lag the limit is reached at, h = min(s, r)
-        and h0 = min(0, r), the position is p + v s + a (h s - h^2 / 2 + h0^2 / 2) and the velocity v + a h;
-        r moves with the state as dr/dv = -w / (a . w), dr/da = r dr/dv (w = v + a r, at the limit)."""
+        and h0 = min(0, r), the position is p + v s + a (h s - h^2 / 2 + h0^2 / 2) and the velocity v + a h,
+        r moving with the state (:meth:`_limit_lag_gradient`)."""
         if self.speed_limit is None:
             return super().trajectory_jacobian(states, lags)
         lags = np.asarray(lags, dtype=float)[None, :]  # (1, K)
@@ -305,11 +318,8 @@ class ConstantAcceleration(LinearMotionModel):
         finite = np.isfinite(reached)
         at_limit = np.where(finite, reached, 0.0)
         held, held_now = np.minimum(lags, reached), np.minimum(at_limit, 0.0)  # (C, K), (C, 1)
-        limit_velocity = unlimited + acceleration * at_limit[..., None]
-        rising = np.sum(acceleration * limit_velocity, axis=-1)  # a . w > 0 where the limit is crossed
-        lag_rate = np.where(finite[..., None], -limit_velocity / np.where(finite, rising, 1.0)[..., None], 0.0)
+        lag_gradient = np.where(finite[..., None], self._limit_lag_gradient(unlimited, acceleration, at_limit), 0.0)
         # d(a h)/d[v, a] where h = r: a times dr/d[v, a], as (C, 1, 3, 6).
-        lag_gradient = np.concatenate([lag_rate, lag_rate * at_limit[..., None]], axis=-1)  # (C, 1, 6)
         through_limit = acceleration[..., :, None] * lag_gradient[..., None, :]
         capped = (lags > at_limit) & finite  # the samples after the source reached the limit
         eye = np.eye(3)
@@ -323,6 +333,26 @@ class ConstantAcceleration(LinearMotionModel):
         jacobian[..., 0:3, 3:9] += position_weight[..., None, None] * through_limit
         jacobian[..., 3:6, 3:9] += capped[..., None, None] * through_limit
         return self._folded(jacobian, states, lags[0])
+
+    def _limit_lag_gradient(self, unlimited: np.ndarray, acceleration: np.ndarray, lag: np.ndarray) -> np.ndarray:
+        """d r / d[v, a] (..., 6) of :meth:`_limit_lag`'s finite ``lag`` r, for v and a (..., 3). Where the line
+        crosses the limit, dr/dv = -w / (a . w) and dr/da = r dr/dv (w = v + a r, at the limit), the rate a . w
+        kept above ``LIMIT_GRAZE`` |a| limit where the line grazes the ball (r turns on a square root there);
+        where it passes outside, r = -(v . a) / |a|^2: dr/dv = -a / |a|^2 and dr/da = -(v + 2 r a) / |a|^2."""
+        assert self.speed_limit is not None  # only a limited model reaches its limit
+        square = np.einsum("...i,...i->...", acceleration, acceleration)[..., None]
+        along = np.einsum("...i,...i->...", unlimited, acceleration)[..., None]
+        speed_square = np.einsum("...i,...i->...", unlimited, unlimited)[..., None]
+        crossing = along**2 - square * (speed_square - self.speed_limit**2) > 0
+        at_limit = unlimited + acceleration * lag[..., None]
+        rising = np.einsum("...i,...i->...", acceleration, at_limit)[..., None]
+        rate = np.maximum(rising, LIMIT_GRAZE * np.sqrt(square) * self.speed_limit)
+        through = -at_limit / np.where(square > 0, rate, 1.0)
+        safe_square = np.where(square > 0, square, 1.0)
+        by_velocity = np.where(crossing, through, -acceleration / safe_square)
+        passing = -(unlimited + 2 * lag[..., None] * acceleration) / safe_square
+        by_acceleration = np.where(crossing, through * lag[..., None], passing)
+        return np.concatenate([by_velocity, by_acceleration], axis=-1)
 
     def _kinematic_noise(self, dt: float) -> np.ndarray:
         return np.kron(_white_noise_blocks(dt, 3), np.eye(3)) * self.config.jerk_psd

@@ -178,10 +178,16 @@ def test_trajectory_jacobian_matches_central_differences_across_folds(name, spee
         states[:3, 6] = 0.0, 1e-7, 1.7e-6
     lags = np.linspace(-60.0, 0.0, 41)
     assert np.any(np.abs(model.trajectory(states, lags)[..., 5] - states[:, None, 5]) > 0)  # some fold
-    if speed_limit:  # at the limit before the window, within it, after it; one never accelerates
-        states[:4, 3:9] = [[1.8, 0, 0.1, 0.01, 0, 0], [1.2, 0, 0.1, 0.01, 0, 0], [0.6, 0, 0.1, 0.01, 0, 0], [0] * 6]
-        reached = model._limit_lag(states[:4])
-        assert reached[0] < -60 < reached[1] < 0 < reached[2] and reached[3] == np.inf
+    if speed_limit:  # at the limit before the window, within it, after it; never; faster, passing outside
+        states[:5, 3:9] = [
+            [1.8, 0, 0.1, 0.01, 0, 0],
+            [1.2, 0, 0.1, 0.01, 0, 0],
+            [0.6, 0, 0.1, 0.01, 0, 0],
+            [0] * 6,
+            [1.8, 0, 0.1, 0.001, 0.01, 0],
+        ]
+        reached = model._limit_lag(states[:5])
+        assert reached[0] < -60 < reached[1] < 0 < reached[2] and reached[3] == np.inf and -60 < reached[4] < 0
     step = 1e-6
     columns = []
     for j in range(model.dim - 2):
@@ -191,6 +197,22 @@ def test_trajectory_jacobian_matches_central_differences_across_folds(name, spee
         columns.append((ahead - behind)[..., 0:6] / (2 * step))
     closed_form = model.trajectory_jacobian(states, lags)
     np.testing.assert_allclose(closed_form, np.stack(columns, -1), rtol=1e-4, atol=1e-5)
+
+
+def test_a_speed_limited_ca_is_continuous_where_its_line_stops_crossing_the_limit():
+    """A state faster than the limit whose line of velocities only grazes the limit's ball, turned a little
+    either way (crossing it, passing outside): the trajectories of the two stay together - the model holds a
+    line that passes outside where it passes closest, where the crossing's two roots meet."""
+    model = MOTION_MODELS["ca"](FilterConfig(), speed_limit=1.0)
+    speed, lags = 1.6, np.linspace(-60.0, 20.0, 81)
+    grazing = np.arccos(np.sqrt(1 - (1.0 / speed) ** 2))  # the angle of a at which the line touches the ball
+    states = np.zeros((2, 11))
+    states[:, 3:6] = [speed, 0.0, 0.0]
+    for state, angle in zip(states, (grazing - 1e-6, grazing + 1e-6)):
+        state[6:9] = 0.01 * np.array([-np.cos(angle), np.sin(angle), 0.0])
+    trajectories = model.source_trajectory(states, lags)
+    assert np.isfinite(model._limit_lag(states)).all()
+    np.testing.assert_allclose(trajectories[0, :, 0:6], trajectories[1, :, 0:6], atol=2e-3)
 
 
 def test_a_speed_limited_ca_moves_as_the_world_source():
