@@ -755,8 +755,9 @@ class SourceTracker:
         small clock-rate bias; each start keeps its own whole-period sheet (b_p)."""
         ini = self.config.initializer
         prior_sd = np.full(self.model.dim, np.inf)
-        # On components 3:6: for a speed-limited CA the velocity without the limit, which can run up to about
-        # 1 m/s ahead of the source's own by an episode's end (0.01 m/s^2 for 100 s).
+        # On components 3:6: for a speed-limited CA the velocity without the limit, which runs ahead of the
+        # source's own once it reached the limit (by up to about 1.2 m/s: 0.01 m/s^2 for 120 s), while
+        # :meth:`_window_chi_square` weighs the source's own.
         prior_sd[3:6] = ini.velocity_prior_sd
         if self.model.name == "ctrv":
             prior_sd[6] = ini.max_turn_rate
