@@ -271,14 +271,19 @@ class ConstantAcceleration(LinearMotionModel):
         the later root of |v + a s|^2 = limit^2. A line that never enters the limit's ball (no source could
         have come from below the limit along it) is held where it passes closest, the lag its two roots meet
         at as it stops crossing, so that the motion stays continuous in the state; +inf without acceleration."""
-        assert self.speed_limit is not None  # only a limited model reaches its limit
-        unlimited, acceleration = states[..., 3:6], states[..., 6:9]
-        square = np.einsum("...i,...i->...", acceleration, acceleration)
-        along = np.einsum("...i,...i->...", unlimited, acceleration)
-        discriminant = along**2 - square * (np.einsum("...i,...i->...", unlimited, unlimited) - self.speed_limit**2)
+        square, along, discriminant = self._limit_crossing(states[..., 3:6], states[..., 6:9])
         accelerating = square > 0
         root = (np.sqrt(np.maximum(discriminant, 0.0)) - along) / np.where(accelerating, square, 1.0)
         return np.where(accelerating, root, np.inf)
+
+    def _limit_crossing(self, unlimited: np.ndarray, acceleration: np.ndarray) -> tuple[np.ndarray, ...]:
+        """|a|^2, v . a and the discriminant (v . a)^2 - |a|^2 (|v|^2 - limit^2) (each (...,)) of the line
+        v + a s of velocities (v, a: (..., 3)) meeting the limit's sphere: it crosses where that is positive."""
+        assert self.speed_limit is not None  # only a limited model reaches its limit
+        square = np.einsum("...i,...i->...", acceleration, acceleration)
+        along = np.einsum("...i,...i->...", unlimited, acceleration)
+        discriminant = along**2 - square * (np.einsum("...i,...i->...", unlimited, unlimited) - self.speed_limit**2)
+        return square, along, discriminant
 
     def velocity(self, states: np.ndarray) -> np.ndarray:
         """The source's velocity (..., 3; m/s): v, or with a speed limit v less a times the time since the
@@ -340,10 +345,8 @@ class ConstantAcceleration(LinearMotionModel):
         kept above ``LIMIT_GRAZE`` |a| limit where the line grazes the ball (r turns on a square root there);
         where it passes outside, r = -(v . a) / |a|^2: dr/dv = -a / |a|^2 and dr/da = -(v + 2 r a) / |a|^2."""
         assert self.speed_limit is not None  # only a limited model reaches its limit
-        square = np.einsum("...i,...i->...", acceleration, acceleration)[..., None]
-        along = np.einsum("...i,...i->...", unlimited, acceleration)[..., None]
-        speed_square = np.einsum("...i,...i->...", unlimited, unlimited)[..., None]
-        crossing = along**2 - square * (speed_square - self.speed_limit**2) > 0
+        square, _, discriminant = (term[..., None] for term in self._limit_crossing(unlimited, acceleration))
+        crossing = discriminant > 0
         at_limit = unlimited + acceleration * lag[..., None]
         rising = np.einsum("...i,...i->...", acceleration, at_limit)[..., None]
         rate = np.maximum(rising, LIMIT_GRAZE * np.sqrt(square) * self.speed_limit)
