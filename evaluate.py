@@ -18,7 +18,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from aasl_gym.config import INITIALIZERS, MEASUREMENT_MODES, MULTIPATH_MODELS, ConfigError, EnvConfig, load_config
+from aasl_gym.config import INITIALIZERS, MEASUREMENT_MODES, MULTIPATH_MODELS, ConfigError, EnvConfig
+from aasl_gym.scenarios import command_line_config, scenario_names
 from aasl_gym.study.jobs import (
     FILTER_CHOICES,
     MOTIONS,
@@ -62,7 +63,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=None,
         help="filter motion model; 'matched' uses cv for static/cv, ca for ca, ctrv for ctrv",
     )
-    add("--config", type=Path, default=None, help="YAML config (default: configs/default.yaml)")
+    add("--scenario", choices=scenario_names(), default=None, help="a named world (configs/scenarios/)")
+    add(
+        "--config",
+        type=Path,
+        default=None,
+        help="YAML config; with --scenario, the fields to change (default: configs/default.yaml, or the scenario)",
+    )
     add("--workers", type=int, default=None, help="processes (default: every core this process may use)")
     add(
         "--backend",
@@ -119,10 +126,7 @@ def study_grid(args: argparse.Namespace) -> StudyGrid:
 
 def prepare(args: argparse.Namespace) -> tuple[EnvConfig, list[Job]]:
     """The config and the jobs; a :class:`ConfigError` carries the message for bad input."""
-    try:
-        config = load_config(args.config or default_config_path())
-    except ConfigError as exc:
-        raise ConfigError(f"--config: {exc}") from exc
+    config = command_line_config(args.scenario, args.config, default_config_path())
     for policy in args.policies:
         if ":" in policy:
             try:

@@ -1,6 +1,7 @@
 """Train a Stable-Baselines3 policy on an AASL-Gym environment.
 
-    python train.py --algo ppo [--env ID] [--config FILE] [--timesteps N] [--n-envs K] [--seed S] [--out DIR]
+    python train.py --algo ppo [--env ID] [--scenario NAME] [--config FILE] [--timesteps N] [--n-envs K]
+                           [--seed S] [--out DIR]
 
 Writes DIR/model.zip (with DIR/model.vecnormalize.pkl when the schedule normalizes observations or
 rewards), DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints under
@@ -19,9 +20,10 @@ from pathlib import Path
 
 import yaml
 
-from aasl_gym.config import ConfigError, load_config, save_config
+from aasl_gym.config import ConfigError, save_config
 from aasl_gym.io import atomic_write_text
 from aasl_gym.registration import ENV_IDS
+from aasl_gym.scenarios import command_line_config, scenario_names
 from agents.training import ALGORITHMS, load_training, training_record
 
 ROOT = Path(__file__).resolve().parent
@@ -33,7 +35,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--env", choices=sorted(ENV_IDS), default=None, help="default: schedule.env in --hyperparameters"
     )
-    parser.add_argument("--config", type=Path, default=ROOT / "configs" / "default.yaml", help="env config (YAML)")
+    parser.add_argument("--scenario", choices=scenario_names(), default=None, help="a named world (configs/scenarios/)")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="env config (YAML); with --scenario, the fields to change (default: configs/default.yaml or the scenario)",
+    )
     parser.add_argument("--hyperparameters", type=Path, default=ROOT / "configs" / "training.yaml")
     parser.add_argument("--timesteps", type=int, default=None, help="default: the schedule in --hyperparameters")
     parser.add_argument("--n-envs", type=int, default=None)
@@ -50,9 +58,9 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        config = load_config(args.config)
+        config = command_line_config(args.scenario, args.config, ROOT / "configs" / "default.yaml")
     except ConfigError as exc:
-        print(f"error: --config: {exc}", file=sys.stderr)
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
         schedule, hyperparameters = load_training(args.hyperparameters, args.algo)

@@ -24,6 +24,7 @@ MEASUREMENT_MODES = ("signal", "geometric")
 SIGNAL_PATHS = ("fast", "hardware")
 INITIALIZERS = ("lcmap", "naive", "random", "tdoa-ls")
 MULTIPATH_MODELS = ("matched", "none", "linear", "phasor")
+REFLECTION_MODELS = ("phasor", "linear")
 FILTER_MODELS = ("cv", "ca", "ctrv")
 PATROLS = ("helix", "spiral", "circle", "lawnmower")
 RECEIVER_KINDS = ("auv", "surface")
@@ -86,6 +87,9 @@ class WorldConfig:
     reflections: bool = True  # simulate the surface and bed image paths
     surface_reflection: float = -0.9  # pressure-release surface: negative
     bed_reflection: float = 0.3
+    # How reflections shape a geometric-mode RD: phasor, the tone's exact multipath sum (what a front end
+    # measures); linear, the reference paper's first-order model RD + a_surf delta_surf + a_bed delta_bed.
+    reflection_model: str = "phasor"
     noise_level_db: float = 80.0  # dB re 1 uPa, ambient noise in the receiver band
 
     def __post_init__(self) -> None:
@@ -105,6 +109,7 @@ class WorldConfig:
             "must lie in [-1, 0] (pressure-release surface)",
         )
         require(0 <= self.bed_reflection <= 1, "world.bed_reflection", "must lie in [0, 1]")
+        require_choice(self.reflection_model, REFLECTION_MODELS, "world.reflection_model")
 
 
 @dataclass(frozen=True)
@@ -114,7 +119,8 @@ class SourceConfig:
     motion: str = "cv"  # static, cv, ca, ctrv, mixed (one of the four, drawn per episode)
     frequency: float = 1000.0  # Hz, tone f0
     waveform: str = "tone"  # tone, sweep, hop (signal mode; geometric mode treats all as tone-ambiguous only for tone)
-    initial_radius: float = 20.0  # m, initial position uniform in the ball of this radius about the origin
+    initial_radius: float = 20.0  # m, initial position uniform in the ball of this radius about initial_centre
+    initial_centre: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m; the origin: the surface above the pod
     speed_range: tuple[float, float] = (0.2, 1.5)  # m/s, cv / ca initial / ctrv speed
     max_speed: float = 1.5  # m/s, ca never exceeds it
     acceleration_range: tuple[float, float] = (0.002, 0.01)  # m/s^2, ca
@@ -528,6 +534,7 @@ class EnvConfig:
             "source.initial_radius",
             f"must not exceed world.region_radius = {self.world.region_radius}",
         )
+        self._check_initial_centre()
         require(
             2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source"
         )
@@ -537,18 +544,40 @@ class EnvConfig:
             f"must not exceed one step (1 / measurement.rate = {1.0 / self.measurement.rate} s)",
         )
         require(
+            self.world.reflection_model == "phasor" or self.measurement.mode == "geometric",
+            "world.reflection_model",
+            f"{self.world.reflection_model!r} generates geometric measurements only (the signal front end hears "
+            "the exact phasor sum): set measurement.mode to geometric or world.reflection_model to phasor",
+        )
+        require(
             self.fault.kind in ("none", "dropped") or self.measurement.mode == "signal",
             "fault.kind",
             f"{self.fault.kind!r} corrupts a synthesized frame: it needs measurement.mode signal",
         )
 
+    def _check_initial_centre(self) -> None:
+        """The ball the source starts in must reach the water it may be in (rejection sampling draws there)."""
+        x, y, z = self.source.initial_centre
+        radius, margin, depth = self.source.initial_radius, self.source.boundary_margin, self.world.water_depth
+        require(
+            math.hypot(x, y) <= self.world.region_radius and -depth <= z <= 0,
+            "source.initial_centre",
+            f"must lie in the water column (-{depth} <= z <= 0) within world.region_radius, got {[x, y, z]}",
+        )
+        require(
+            z - radius < -margin and z + radius > -depth + margin,
+            "source.initial_centre",
+            f"its ball of source.initial_radius = {radius} m must reach the water between "
+            f"source.boundary_margin = {margin} m below the surface and above the bed, got z = {z}",
+        )
+
     @property
     def filter_multipath(self) -> str:
-        """The filter's multipath model, ``matched`` resolved against the world: the exact (phasor) model
-        where the world has reflections, the direct path where it has none."""
+        """The filter's multipath model, ``matched`` resolved against the world: the world's own
+        ``reflection_model`` where it has reflections, the direct path where it has none."""
         if self.filter.multipath != "matched":
             return self.filter.multipath
-        return "phasor" if self.world.reflections else "none"
+        return self.world.reflection_model if self.world.reflections else "none"
 
     @property
     def filter_speed_limit(self) -> float | None:
@@ -666,8 +695,10 @@ def from_dict(data: Mapping[str, Any] | None) -> EnvConfig:
     return build_section(EnvConfig, data or {}, "")
 
 
-def load_config(path: str | Path) -> EnvConfig:
-    """Load a YAML config file; errors name the file and the offending key."""
+def read_config_file(path: str | Path, extra_keys: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The fields a YAML config file sets (nested plain values; an empty file sets none), checked as a
+    config of their own, and any of the top-level ``extra_keys`` it has (e.g. a scenario's
+    ``description``); errors name the file and the offending key."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file {str(path)!r} does not exist")
@@ -675,8 +706,21 @@ def load_config(path: str | Path) -> EnvConfig:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
+    data = {} if data is None else data
+    require(isinstance(data, Mapping), str(path), f"must be a mapping of config sections, got {type(data).__name__}")
     try:
-        return from_dict(data)
+        from_dict({key: value for key, value in data.items() if key not in extra_keys})
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from exc
+    return dict(data)
+
+
+def load_config(path: str | Path, base: Mapping[str, Any] | None = None) -> EnvConfig:
+    """Load a YAML config file, its fields over ``base`` (nested plain values, e.g. a scenario's) or
+    over the defaults; errors name the file and the offending key."""
+    data = read_config_file(path)
+    try:
+        return from_dict(merge(base or {}, data))
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from exc
 

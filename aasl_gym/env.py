@@ -12,7 +12,7 @@ import numpy as np
 from gymnasium import spaces
 
 from aasl_gym import metrics, rewards
-from aasl_gym.config import PATROLS, ConfigError, EnvConfig, from_dict, load_config, to_dict
+from aasl_gym.config import PATROLS, ConfigError, EnvConfig, from_dict, load_config, merge, to_dict
 from aasl_gym.estimator import SourceTracker, TrackerOutput
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.fisher import InformationTracker, measurement_jacobian
@@ -29,6 +29,7 @@ from aasl_gym.motion import (
 from aasl_gym.observation import OBSERVATION_BOUND, OBSERVATION_SIZE, Observation, encode_observation
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 from aasl_gym.planning import GreedyPlanner
+from aasl_gym.scenarios import scenario_fields
 from aasl_gym.sensors import make_sensor
 
 if TYPE_CHECKING:
@@ -47,27 +48,38 @@ OVERRIDES: dict[str, tuple[str, str]] = {
 ENV_PATROLS = (*PATROLS, "greedy")  # what an env's action may be a residual on (``patrol``)
 
 
-def resolve_config(config: EnvConfig | Mapping[str, Any] | str | Path | None, **overrides: Any) -> EnvConfig:
-    """An :class:`EnvConfig` from a config object, a nested dict or a YAML path, with keyword overrides.
+def resolve_config(
+    config: EnvConfig | Mapping[str, Any] | str | Path | None, scenario: str | None = None, **overrides: Any
+) -> EnvConfig:
+    """An :class:`EnvConfig` from a named scenario, a config (object, nested dict or YAML path) and keyword
+    overrides, each over the one before.
 
-    ``overrides`` are the keys of :data:`OVERRIDES`; ``None`` leaves a field alone. Bad values raise
-    :class:`ConfigError` naming the keyword.
+    ``scenario`` is a name of :func:`~aasl_gym.scenarios.scenario_names`; a ``config`` given with it is a
+    dict or a file of the fields to change (an :class:`EnvConfig` is complete, so it cannot be). ``overrides``
+    are the keys of :data:`OVERRIDES`; ``None`` leaves a field alone. Bad values raise :class:`ConfigError`
+    naming the keyword.
     """
+    fields = {} if scenario is None else scenario_fields(scenario)
     if config is None:
-        base = EnvConfig()
+        base = from_dict(fields)
     elif isinstance(config, EnvConfig):
+        if scenario is not None:
+            raise ConfigError(
+                f"scenario={scenario!r} with config=EnvConfig(...): an EnvConfig sets every field; pass the "
+                "fields to change as a dict or a YAML file"
+            )
         base = config
     elif isinstance(config, Mapping):
-        base = from_dict(config)
+        base = from_dict(merge(fields, config))
     elif isinstance(config, (str, Path)):
-        base = load_config(config)
+        base = load_config(config, base=fields)
     else:
         raise ConfigError(
             f"config: expected a path to a YAML file, a mapping or an EnvConfig, got {type(config).__name__}"
         )
     unknown = sorted(set(overrides) - set(OVERRIDES))
     if unknown:
-        raise ConfigError(f"{unknown[0]}: unknown override; allowed: {sorted(OVERRIDES)} and config")
+        raise ConfigError(f"{unknown[0]}: unknown override; allowed: {sorted(OVERRIDES)}, config and scenario")
     data = to_dict(base)
     for keyword, value in overrides.items():
         if value is None:
@@ -143,7 +155,7 @@ class AASLEnv(gym.Env):
 
     ## Starting State
     The robot starts at ``receiver.start_position``. The source starts uniformly within
-    ``source.initial_radius`` (20 m) of the origin inside the water column and follows
+    ``source.initial_radius`` (20 m) of ``source.initial_centre`` (the origin) inside the water column and follows
     ``source.motion`` (static, cv, ca, ctrv or mixed) with parameters drawn from the seed. The filter
     starts after ``initializer.burst_duration`` seconds of measurements.
 
@@ -172,10 +184,13 @@ class AASLEnv(gym.Env):
     are 0-d float64 arrays, so that two infos from the same seed compare equal NaN for NaN.
 
     ## Arguments
-    ``AASLEnv(config=None, patrol=None, render_mode=None, source_motion=None, measurement=None,
-    initializer=None, reflections=None, multipath=None, filter_model=None)``. ``config`` is an
-    :class:`~aasl_gym.config.EnvConfig`, a nested dict or the path of a YAML file; the other keywords
-    override one field each and are validated with errors that name them. ``render_mode`` is
+    ``AASLEnv(config=None, patrol=None, render_mode=None, scenario=None, source_motion=None,
+    measurement=None, initializer=None, reflections=None, multipath=None, filter_model=None)``.
+    ``scenario`` names a world of the reference paper's studies (``aasl_gym.scenarios``: ``default``,
+    ``paper-monte-carlo``, ``shallow-water``, ``submerged-pod``). ``config`` is an
+    :class:`~aasl_gym.config.EnvConfig`, a nested dict or the path of a YAML file (with a scenario, a dict
+    or file of the fields to change); the other keywords override one field each, over both, and are
+    validated with errors that name them. ``render_mode`` is
     ``"rgb_array"`` (works headless) or ``"human"`` (a matplotlib window).
 
     ## Version History
@@ -189,9 +204,10 @@ class AASLEnv(gym.Env):
         config: EnvConfig | Mapping[str, Any] | str | Path | None = None,
         patrol: str | None = None,
         render_mode: str | None = None,
+        scenario: str | None = None,
         **overrides: Any,
     ):
-        self.config = resolve_config(config, **overrides)
+        self.config = resolve_config(config, scenario, **overrides)
         if patrol is not None and patrol not in ENV_PATROLS:
             raise ConfigError(f"patrol={patrol!r}: allowed values are {list(ENV_PATROLS)} or None")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

@@ -507,7 +507,7 @@ class SourceTracker:
     def _search_prior(self, time: float) -> None:
         """The search from the prior on the first ``SEARCH_WINDOW`` seconds of the growing window the
         episode's first start opened, latest first: the fits' states are given at its first sample, where the
-        source is within ``source.initial_radius`` of the origin but for ``initializer.max_source_speed``
+        source is within ``source.initial_radius`` of its centre but for ``initializer.max_source_speed``
         since the episode began (a lattice a third the size of one at the window's end)."""
         self.searched = True
         window = self._burst(self._window_length(time), fine=True)
@@ -516,7 +516,7 @@ class SourceTracker:
         ini = self.config.initializer
         radius = self.config.source.initial_radius + ini.max_source_speed * start
         reach = Box(radius, self.region.z_min, self.region.z_max)
-        lattice = prior_lattice(reach, ini.search_spacing)
+        lattice = prior_lattice(reach, ini.search_spacing, np.asarray(self.config.source.initial_centre))
         starts = np.zeros((len(lattice), self.model.dim))
         starts[:, 0:3], starts[:, -2] = lattice, self.range_offset
         self.pool = search(first, self.model, starts, self._window_prior, RIPPLE_GATE * first.measurements.size)

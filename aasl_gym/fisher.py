@@ -20,10 +20,14 @@ from aasl_gym.config import EnvConfig
 
 def information_prior(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
     """Mean and covariance of [p, v, b_p, b_v] before any measurement: the source somewhere within
-    ``initializer.position_sd`` of a point half the start radius down, slow, with an unknown
+    ``initializer.position_sd`` of a point half the start radius from ``source.initial_centre`` towards
+    the middle of the water column (down from a centre at the surface), slow, with an unknown
     whole-period offset (sd: the start radius) and a small clock-rate bias."""
     ini, radius = config.initializer, config.source.initial_radius
-    mean = np.array([0.0, 0.0, -0.5 * radius, 0, 0, 0, 0, 0])
+    centre = np.asarray(config.source.initial_centre, dtype=float)
+    towards_middle = -1.0 if centre[2] >= -0.5 * config.world.water_depth else 1.0
+    mean = np.zeros(8)
+    mean[0:3] = centre + np.array([0.0, 0.0, towards_middle * 0.5 * radius])
     covariance = np.diag([ini.position_sd**2] * 3 + [ini.velocity_prior_sd**2] * 3 + [radius**2, ini.rate_bias_sd**2])
     return mean, covariance
 

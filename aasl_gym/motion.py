@@ -51,12 +51,13 @@ def motion_region(world: WorldConfig, source: SourceConfig) -> Box:
     return region if source.confined else replace(region, radius=np.inf)
 
 
-def sample_initial_position(rng: np.random.Generator, radius: float, region: Box) -> np.ndarray:
-    """Uniform in the ball of ``radius`` about the origin, restricted to ``region`` (rejection sampling)."""
+def sample_initial_position(rng: np.random.Generator, radius: float, region: Box, centre: np.ndarray) -> np.ndarray:
+    """Uniform in the ball of ``radius`` (m) about ``centre`` (m), restricted to ``region`` (rejection sampling)."""
     while True:
-        point = rng.uniform(-radius, radius, size=3)
+        offset = rng.uniform(-radius, radius, size=3)
+        point = centre + offset
         if (
-            point @ point <= radius**2
+            offset @ offset <= radius**2
             and region.z_min <= point[2] <= region.z_max
             and np.hypot(point[0], point[1]) <= region.radius
         ):
@@ -75,7 +76,7 @@ def sample_source(rng: np.random.Generator, kind: str, source: SourceConfig, wor
     if kind == "mixed":
         kind = MOTION_KINDS[int(rng.integers(len(MOTION_KINDS)))]
     region = source_region(world, source)
-    position = sample_initial_position(rng, source.initial_radius, region)
+    position = sample_initial_position(rng, source.initial_radius, region, np.asarray(source.initial_centre))
     zero = np.zeros(3)
     if kind == "static":
         return SourceState(kind, position, zero, zero, 0.0, source.max_speed)

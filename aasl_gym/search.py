@@ -56,13 +56,13 @@ TRACK_WINDOWS = (15.0, 40.0)  # s: the windows its starts are fitted on in turn 
 TRACK_KEEP = (32, 8)  # distinct fits of each of those windows that go on to the next
 
 
-def prior_lattice(region: Box, spacing: float) -> np.ndarray:
-    """Points (N, 3) of a cubic lattice of ``spacing`` (m) inside ``region``'s ball of radius
-    ``region.radius`` about the origin, between its depth bounds; the top layer at ``z_max``."""
+def prior_lattice(region: Box, spacing: float, centre: np.ndarray) -> np.ndarray:
+    """Points (N, 3) of a cubic lattice of ``spacing`` (m) inside the ball of radius ``region.radius``
+    about ``centre`` (m), between ``region``'s depth bounds; the top layer at ``z_max``."""
     axis = np.arange(-region.radius, region.radius + 1e-9, spacing)
     depths = np.arange(region.z_max, region.z_min - 1e-9, -spacing)
-    points = np.stack(np.meshgrid(axis, axis, depths, indexing="ij"), -1).reshape(-1, 3)
-    return points[np.linalg.norm(points, axis=1) <= region.radius]
+    points = np.stack(np.meshgrid(centre[0] + axis, centre[1] + axis, depths, indexing="ij"), -1).reshape(-1, 3)
+    return points[np.linalg.norm(points - centre, axis=1) <= region.radius]
 
 
 def local_lattice(centre: np.ndarray, half_width: float, spacing: float) -> np.ndarray:

@@ -55,7 +55,8 @@ class GeometricSensor:
     """z = h(true state) + Gaussian noise of sd ``measurement.range_difference_sd`` and
     ``range_rate_difference_sd``, with the tone's whole-period ambiguity (SPEC section 3).
 
-    With reflections on, the true [RD, RRD] is the phasor model's (what a tone front end measures). Its
+    With reflections on, the true [RD, RRD] is that of ``world.reflection_model``: the phasor model's by
+    default (what a tone front end measures), or the reference paper's first-order (linear) model. Its
     R is that fixed noise; its SNRs are the SNR model's (:func:`~aasl_gym.measurement_models.model_snr`)
     at the frame's true geometry. A frame the ``fault`` drops is NaN (its noise is still drawn, so later
     frames match a run without it).
@@ -66,7 +67,7 @@ class GeometricSensor:
         self.config = config
         self.sd = np.array([measurement.range_difference_sd, measurement.range_rate_difference_sd])
         self.propagation = Propagation.from_config(config.world, config.source.frequency)
-        self.reflections = config.world.reflections
+        self.model = config.world.reflection_model if config.world.reflections else "none"
         self.unwrapper = Unwrapper(period)
         self.fault = config.fault
         self._covariance = np.diag(self.sd**2)
@@ -87,9 +88,8 @@ class GeometricSensor:
         range_rate_bias: float = 0.0,
     ) -> np.ndarray:
         """z at ``time`` (s; the geometry is taken as given) from the true source and receiver states."""
-        model = "phasor" if self.reflections else "none"
         truth = multipath_measurement(
-            model, self.propagation, source_position, source_velocity, mobile, mobile_velocity, fixed
+            self.model, self.propagation, source_position, source_velocity, mobile, mobile_velocity, fixed
         )
         noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
         self._snr = model_snr(self.config, source_position, np.array([mobile, fixed]))

@@ -104,15 +104,18 @@ def test_the_velocity_solve_finds_a_near_surface_sources_velocity_from_rest():
     assert reached >= 4
 
 
-def test_the_prior_lattice_fills_the_ball_within_the_water_column():
+@pytest.mark.parametrize("centre", [(0.0, 0.0, 0.0), (3.0, -2.0, -59.06)])  # the surface; a pod on the bed
+def test_the_prior_lattice_fills_the_ball_within_the_water_column(centre):
     region = Box(20.0, -58.0, -2.0)
-    points = prior_lattice(region, 2.0)
-    assert np.all(np.linalg.norm(points, axis=1) <= 20.0 + 1e-9)
+    centre = np.array(centre)
+    points = prior_lattice(region, 2.0, centre)
+    assert np.all(np.linalg.norm(points - centre, axis=1) <= 20.0 + 1e-9)
     assert np.all((points[:, 2] <= -2.0 + 1e-9) & (points[:, 2] >= -58.0 - 1e-9))
-    # One point per 8 m^3 of the ball's part below 2 m (a spherical cap of height 18 m, pi h^2 (3r - h) / 3),
-    # and the top layer, which lies on the cap's flat face (radius sqrt(20^2 - 2^2)), half a layer more.
-    volume = np.pi * 18.0**2 * (3 * 20.0 - 18.0) / 3
-    face = np.pi * (20.0**2 - 2.0**2)
+    # One point per 8 m^3 of the ball's part inside the water column (a spherical cap of height h,
+    # pi h^2 (3r - h) / 3), and the layer on the cap's flat face (radius sqrt(r^2 - (r - h)^2)), half a layer more.
+    height = 20.0 - min(abs(centre[2] - (-2.0)), abs(centre[2] - (-58.0)))
+    volume = np.pi * height**2 * (3 * 20.0 - height) / 3
+    face = np.pi * (20.0**2 - (20.0 - height) ** 2)
     expected = (volume + 0.5 * 2.0 * face) / 2.0**3
     assert abs(len(points) - expected) < 0.02 * expected
 
