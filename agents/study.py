@@ -35,6 +35,19 @@ def run_episode(job: Job) -> Row:
     """One episode; returns its results row. Scripted policies fly ``AASL-v0``; a trained model flies
     the env it was trained on (a residual model needs its patrol's command), with the same source,
     noise and metrics for the same seed."""
+    return _play(job)[0]
+
+
+def run_trial(job: Job) -> Row:
+    """One trial of a paper study (:mod:`aasl_gym.study.paper`): :func:`run_episode`'s row with the job's
+    ``variant`` and the episode's largest position error (m) once the filter had started, ``max_error``."""
+    row, errors = _play(job, keep_errors=True)
+    row["variant"] = job.variant
+    row["max_error"] = _finite_or_none(max(errors)) if errors else None
+    return row
+
+
+def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[float]]:
     policy = trained_model(job.policy) if ":" in job.policy else None
     patrol = ENV_IDS[policy.env_id] if policy is not None else None
     env = AASLEnv(
@@ -47,7 +60,13 @@ def run_episode(job: Job) -> Row:
     )
     if policy is None:
         policy = make_policy(job.policy, env.config, seed=job.seed)
-    info = play_episode(env, policy, job.seed)
+    errors: list[float] = []
+
+    def keep(reward: float, info: dict) -> None:
+        if info["initialized"]:
+            errors.append(float(info["position_error"]))
+
+    info = play_episode(env, policy, job.seed, on_step=keep if keep_errors else None)
     env.close()
     row = {
         "policy": job.policy,
@@ -65,4 +84,4 @@ def run_episode(job: Job) -> Row:
     }
     if job.record:
         row["trajectory"] = {name: np.asarray(points).tolist() for name, points in env.trajectory.items()}
-    return row
+    return row, errors

@@ -26,6 +26,7 @@ class Job:
     config: dict
     filter_model: str | None
     record: bool = False  # keep the episode's paths for the trajectory plots
+    variant: str = ""  # a study's world or filter variant (aasl_gym.study.paper), whose fields ``config`` holds
 
 
 @dataclass(frozen=True)
@@ -80,5 +81,7 @@ def effective_config(config: EnvConfig, job: Job) -> EnvConfig:
 
 
 def episode_key(job: Job) -> tuple:
-    """What names an episode in the resume log (the config is the log's header, the same for all)."""
-    return (job.policy, job.initializer, job.motion, job.measurement, job.seed, job.filter_model)
+    """What names an episode in the resume log (the config is the log's header: the same for all but a
+    variant's own fields, which its name stands for)."""
+    key = (job.policy, job.initializer, job.motion, job.measurement, job.seed, job.filter_model)
+    return (*key, job.variant) if job.variant else key

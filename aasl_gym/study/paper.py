@@ -1,0 +1,238 @@
+"""The reference paper's ablation studies (issue 14): the variants of a scenario's world and filter each
+one runs, its trials as jobs, and the paper's metrics over them.
+
+A trial is one episode of the helix patrol with the LC-MAP tracker, the filter's motion model matched to
+the source's. Every variant runs the same seeds, so variants are compared on the same sources and noise.
+A trial *diverges* when its RMSE (over the steps with an estimate) exceeds :data:`DIVERGENCE_RMSE`, the
+paper's 30 m, or it never had an estimate; RMSE, final and maximum error are then averaged over the
+trials that did not (mean and sample sd), as the paper reports them.
+
+- ``multipath`` (paper: 100 trials, 20 m of water, -0.9 / 0.3): the filters ``none``, ``linear`` and
+  ``phasor`` in the paper's world (RD from its first-order model) and in the exact tone world.
+- ``coefficients`` (paper: 10 trials per pair): a grid of a_surf in [-1, 0] and a_bed in [0, 1], the
+  direct-path filter against the one matched to the world, in both worlds.
+- ``navigation`` (paper: 10 trials per level): sigma_rov from 0 to 0.7 m (velocity sd 0.4 sigma_rov), the
+  filter told R_ac only against R_eff, in the Monte Carlo world; optionally with a slow drift on top.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from aasl_gym.config import EnvConfig, merge, to_dict
+from aasl_gym.measurement_models import Propagation, multipath_measurement
+from aasl_gym.motion import sample_source, source_region
+from aasl_gym.patrols import PatrolGeometry, helix_reference
+from aasl_gym.scenarios import scenario_config
+from aasl_gym.study.jobs import MATCHED_FILTER, Job
+from aasl_gym.study.log import Row
+
+DIVERGENCE_RMSE = 30.0  # m: a trial whose RMSE exceeds it diverged (the paper's definition)
+WORLD_MODELS = ("linear", "phasor")  # how the world's reflections shape RD: the paper's first order, the exact tone
+MULTIPATH_FILTERS = ("none", "linear", "phasor")
+NAVIGATION_LEVELS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)  # m, sigma_rov
+PATROL = "helix"
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One cell of a study: its name, its coordinates (``labels``, e.g. ``{"world": "linear"}``) and the
+    config fields it changes in the study's scenario."""
+
+    name: str
+    labels: dict[str, Any]
+    changes: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Study:
+    """What one study runs: ``variants`` of ``scenario`` with the user's ``changes`` under each variant's
+    own, ``trials`` seeds each (the paper's count by default)."""
+
+    name: str
+    scenario: str
+    trials: int
+    variants: tuple[Variant, ...]
+    changes: dict[str, Any] = field(default_factory=dict)
+
+    def config(self, variant: Variant | None = None) -> EnvConfig:
+        """The config a variant's trials run with (without one: the study's base)."""
+        return scenario_config(self.scenario, merge(self.changes, variant.changes if variant else {}))
+
+
+def multipath_variants() -> tuple[Variant, ...]:
+    """Each world model x each filter model."""
+    return tuple(
+        Variant(
+            f"{world} world, {model} filter",
+            {"world": world, "filter": model},
+            {"world": {"reflection_model": world}, "filter": {"multipath": model}},
+        )
+        for world in WORLD_MODELS
+        for model in MULTIPATH_FILTERS
+    )
+
+
+def coefficient_variants(size: int = 6) -> tuple[Variant, ...]:
+    """A ``size`` x ``size`` grid of (a_surf in [-1, 0], a_bed in [0, 1]), each world, the direct-path
+    filter and the world's own (``matched``)."""
+    surface = [round(float(a), 4) for a in np.linspace(-1.0, 0.0, size)]
+    bed = [round(float(a), 4) for a in np.linspace(0.0, 1.0, size)]
+    return tuple(
+        Variant(
+            f"{world} world, {model} filter, a_surf {a_surf:+.2f}, a_bed {a_bed:.2f}",
+            {"world": world, "filter": model, "surface_reflection": a_surf, "bed_reflection": a_bed},
+            {
+                "world": {"reflection_model": world, "surface_reflection": a_surf, "bed_reflection": a_bed},
+                "filter": {"multipath": model},
+            },
+        )
+        for world in WORLD_MODELS
+        for model in ("none", "matched")
+        for a_surf in surface
+        for a_bed in bed
+    )
+
+
+def navigation_variants(levels: tuple[float, ...] = NAVIGATION_LEVELS, drift: float = 0.0) -> tuple[Variant, ...]:
+    """Each sigma_rov level (m; velocity sd 0.4 sigma_rov), the filter with R_ac only and with R_eff;
+    ``drift`` (m/sqrt(s)) > 0 adds the same levels with a random-walk drift of the reported position."""
+    drifts = (0.0, drift) if drift > 0 else (0.0,)
+    return tuple(
+        Variant(
+            f"sigma_rov {level:.2f} m, {'R_eff' if compensate else 'R_ac only'}" + (f", drift {sd:g}" if sd else ""),
+            {"sigma_rov": level, "compensation": "R_eff" if compensate else "R_ac only", "drift": sd},
+            {
+                "receiver": {"nav_position_sd": level, "nav_velocity_sd": None, "nav_drift_sd": sd},
+                "filter": {"compensate_navigation": compensate},
+            },
+        )
+        for sd in drifts
+        for level in levels
+        for compensate in (False, True)
+    )
+
+
+def make_study(
+    name: str, trials: int | None = None, grid: int = 6, drift: float = 0.0, changes: dict[str, Any] | None = None
+) -> Study:
+    """The study ``name`` (``multipath``, ``coefficients`` or ``navigation``) with ``trials`` seeds per
+    variant (default: the paper's), a ``grid`` x ``grid`` coefficient grid, an optional drift and config
+    ``changes`` (nested plain values) to its scenario, under its variants' own."""
+    changes = changes or {}
+    if name == "multipath":
+        return Study(name, "shallow-water", trials or 100, multipath_variants(), changes)
+    if name == "coefficients":
+        return Study(name, "shallow-water", trials or 10, coefficient_variants(grid), changes)
+    if name == "navigation":
+        return Study(name, "paper-monte-carlo", trials or 10, navigation_variants(drift=drift), changes)
+    raise ValueError(f"unknown study {name!r}; allowed: ['multipath', 'coefficients', 'navigation']")
+
+
+def study_jobs(study: Study, motion: str, first_seed: int) -> list[Job]:
+    """One job per variant and seed (seeds ``first_seed`` onward, the same for every variant)."""
+    jobs = []
+    for variant in study.variants:
+        config = study.config(variant)
+        data = to_dict(config)
+        mode, filter_model = config.measurement.mode, MATCHED_FILTER[motion]
+        for seed in range(first_seed, first_seed + study.trials):
+            jobs.append(Job(PATROL, "lcmap", motion, mode, seed, data, filter_model, variant=variant.name))
+    return jobs
+
+
+def study_header(study: Study, motion: str) -> dict[str, Any]:
+    """What the resume log holds a study to: its scenario's config, its variants and the source's motion."""
+    base = to_dict(study.config())
+    variants = [variant.changes for variant in study.variants]
+    return {"study": study.name, "scenario": study.scenario, "motion": motion, "base": base, "variants": variants}
+
+
+def _mean_sd(values: list[float]) -> tuple[float | None, float | None]:
+    if not values:
+        return None, None
+    sd = float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
+    return float(np.mean(values)), sd
+
+
+def converged(row: Row) -> bool:
+    """The paper's test: the trial's RMSE is known and at most :data:`DIVERGENCE_RMSE`."""
+    return row["rmse"] is not None and row["rmse"] <= DIVERGENCE_RMSE
+
+
+def summarize_variants(study: Study, rows: list[Row]) -> list[Row]:
+    """Per variant, in the study's order: its labels, n, the converged share, RMSE / final / maximum
+    error over the converged trials (mean and sd), our success share at 1 m, the median RMSE of all (a trial
+    without an estimate counts as infinite) and the mean RMSE of those with one (the heat maps' and the
+    sweep's measure: diverged trials included)."""
+    summary = []
+    for variant in study.variants:
+        trials = [row for row in rows if row["variant"] == variant.name]
+        kept = [row for row in trials if converged(row)]
+        entry: Row = {"variant": variant.name, **variant.labels, "n": len(trials)}
+        entry["converged_rate"] = len(kept) / len(trials) if trials else None
+        for metric in ("rmse", "final_error", "max_error"):
+            entry[f"{metric}_mean"], entry[f"{metric}_sd"] = _mean_sd([row[metric] for row in kept])
+        entry["success_rate_1m"] = sum(row["success"]["1.0"] for row in trials) / len(trials) if trials else None
+        median = float(np.median([math.inf if row["rmse"] is None else row["rmse"] for row in trials] or [math.inf]))
+        entry["rmse_median"] = median if math.isfinite(median) else None
+        entry["rmse_all_mean"] = _mean_sd([row["rmse"] for row in trials if row["rmse"] is not None])[0]
+        summary.append(entry)
+    return summary
+
+
+def wrapped(values: np.ndarray, period: float) -> np.ndarray:
+    """``values`` (m) folded into [-period / 2, period / 2): a tone's RD is known only modulo its wavelength."""
+    return (np.asarray(values) + 0.5 * period) % period - 0.5 * period
+
+
+def model_error(
+    config: EnvConfig, sources, velocities, receivers, receiver_velocities, model: str = "linear"
+) -> np.ndarray:
+    """[RD, RRD] of a filter's multipath ``model`` (``linear``, the paper's first order, or ``none``) minus
+    the exact tone's (``phasor``), shape (..., 2) (m, m/s), for sources and mobile receivers (..., 3) and
+    the world's fixed hydrophone; the RD error is folded into one wavelength, what a tone tracker can tell
+    apart (its whole-period offset is a state of the filter)."""
+    propagation = Propagation.from_config(config.world, config.source.frequency)
+    fixed = np.asarray(config.world.fixed_position, dtype=float)
+    states = (sources, velocities, receivers, receiver_velocities, fixed)
+    error = multipath_measurement(model, propagation, *states) - multipath_measurement("phasor", propagation, *states)
+    error[..., 0] = wrapped(error[..., 0], config.wavelength)
+    return error
+
+
+def model_error_samples(config: EnvConfig, count: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The errors (``count``, 2) of the ``linear`` and the direct-path (``none``) model where a study meets
+    them: CV sources drawn as the env draws them, the mobile hydrophone at a uniformly random time of the
+    helix patrol, with their velocities."""
+    geometry = PatrolGeometry.from_config(config)
+    sources, velocities, receivers, receiver_velocities = (np.zeros((count, 3)) for _ in range(4))
+    for i in range(count):
+        source = sample_source(rng, "cv", config.source, config.world)
+        sources[i], velocities[i] = source.position, source.velocity
+        receivers[i], receiver_velocities[i] = helix_reference(
+            rng.uniform(0.0, config.episode.duration), config.patrol, geometry
+        )
+    states = (sources, velocities, receivers, receiver_velocities)
+    return {model: model_error(config, *states, model=model) for model in ("linear", "none")}
+
+
+def model_error_map(config: EnvConfig, spacing: float = 0.25) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``linear`` model's RD error (m) over the vertical plane y = 0 through the pod, for still sources
+    within ``source.initial_radius`` horizontally, in the water the source may be in, heard from the
+    patrol's start (its velocity that of the helix there): cell centres x (m), z (m, top first) and the
+    error (z, x)."""
+    region = source_region(config.world, config.source)
+    radius = config.source.initial_radius
+    # Cell centres, half a cell off the patrol's start and the hydrophones, where the models are singular.
+    xs = np.arange(-radius + 0.5 * spacing, radius, spacing)
+    zs = np.arange(region.z_max - 0.5 * spacing, region.z_min, -spacing)
+    grid_x, grid_z = np.meshgrid(xs, zs)
+    sources = np.stack([grid_x, np.zeros_like(grid_x), grid_z], axis=-1)
+    receiver, receiver_velocity = helix_reference(0.0, config.patrol, PatrolGeometry.from_config(config))
+    error = model_error(config, sources, np.zeros_like(sources), receiver, receiver_velocity)
+    return xs, zs, error[..., 0]
