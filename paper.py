@@ -2,10 +2,12 @@
 
     python paper.py multipath    [--trials 100] [--seed S] [--motion M] [--workers K] [--out DIR] [--resume]
     python paper.py coefficients [--trials 10] [--grid 6] ...
-    python paper.py navigation   [--trials 10] [--drift 0.02] ...
+    python paper.py navigation   [--trials 10] [--drift 0.02] ...   (the paper's 10 trials; 100 for a firm figure)
     python paper.py model-error  [--samples 20000] [--out DIR]
 
-``--config FILE`` changes fields of the study's scenario (under each variant's own), e.g. a shorter episode.
+``--config FILE`` changes fields of the study's scenario, e.g. a shorter episode; the fields a study varies
+(the reflection model and coefficients, the filter's multipath model, the navigation error and its
+compensation) are each variant's own and win over the file's.
 
 Each trial study runs its variants (``aasl_gym.study.paper``) on the same seeds S, S+1, ..., on a local
 process pool or Ray (``--backend ray``) like ``evaluate.py``; each finished trial is appended to
@@ -23,9 +25,10 @@ import sys
 from pathlib import Path
 
 from aasl_gym.config import ConfigError, read_config_file
+from aasl_gym.scenarios import scenario_fields
 from aasl_gym.study.jobs import MOTIONS, Job, episode_key
 from aasl_gym.study.log import EpisodeLog, LogMismatch
-from aasl_gym.study.paper import make_study, study_header, study_jobs, summarize_variants
+from aasl_gym.study.paper import STUDY_SCENARIOS, make_study, study_header, study_jobs, summarize_variants
 from aasl_gym.study.paper_report import write_model_error, write_study
 from aasl_gym.study.runner import BACKENDS, Backend, MissingBackend, run_jobs
 from agents.study import run_trial
@@ -43,7 +46,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("--seed", type=int, default=FIRST_SEED, help="first seed")
     add("--motion", choices=MOTIONS, default="cv", help="the source's motion (the filter's model matches it)")
     add("--grid", type=int, default=6, help="coefficients: values of a_surf and of a_bed")
-    add("--drift", type=float, default=0.0, help="navigation: also run every level with this drift (m/sqrt(s))")
+    add(
+        "--drift",
+        type=float,
+        default=0.02,
+        help="navigation: also run every level with this random-walk drift of the reported position (m/sqrt(s); "
+        "0: none)",
+    )
     add("--samples", type=int, default=20000, help="model-error: source and receiver pairs in the histogram")
     add("--config", type=Path, default=None, help="YAML file of fields to change in the study's scenario")
     add("--workers", type=int, default=None, help="processes (default: every core this process may use)")
@@ -89,7 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     command = "python paper.py " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
     try:
-        changes = {} if args.config is None else read_config_file(args.config)
+        scenario = scenario_fields(STUDY_SCENARIOS[args.study])
+        changes = {} if args.config is None else read_config_file(args.config, base=scenario)
         if args.study == "model-error":
             written = write_model_error(args.out, command, args.samples, changes, plots=not args.no_plots)
             print(f"wrote {', '.join(str(path) for path in written)}")

@@ -556,19 +556,22 @@ class EnvConfig:
         )
 
     def _check_initial_centre(self) -> None:
-        """The ball the source starts in must reach the water it may be in (rejection sampling draws there)."""
+        """The ball the source starts in must reach the water it may start in - the region less
+        ``source.boundary_margin`` (:func:`aasl_gym.motion.source_region`) - or rejection sampling never ends."""
         x, y, z = self.source.initial_centre
         radius, margin, depth = self.source.initial_radius, self.source.boundary_margin, self.world.water_depth
+        reach = self.world.region_radius - margin
         require(
-            math.hypot(x, y) <= self.world.region_radius and -depth <= z <= 0,
+            -depth <= z <= 0,
             "source.initial_centre",
-            f"must lie in the water column (-{depth} <= z <= 0) within world.region_radius, got {[x, y, z]}",
+            f"z = {z} m must lie in the water column [-{depth}, 0] (world.water_depth = {depth})",
         )
         require(
-            z - radius < -margin and z + radius > -depth + margin,
+            math.hypot(x, y) - radius < reach and z - radius < -margin and z + radius > -depth + margin,
             "source.initial_centre",
-            f"its ball of source.initial_radius = {radius} m must reach the water between "
-            f"source.boundary_margin = {margin} m below the surface and above the bed, got z = {z}",
+            f"its ball of source.initial_radius = {radius} m about {[x, y, z]} must reach the water a source may "
+            f"start in: within world.region_radius - source.boundary_margin = {reach} m of the origin horizontally, "
+            f"{margin} m below the surface and above the bed ({depth} m)",
         )
 
     @property
@@ -695,10 +698,12 @@ def from_dict(data: Mapping[str, Any] | None) -> EnvConfig:
     return build_section(EnvConfig, data or {}, "")
 
 
-def read_config_file(path: str | Path, extra_keys: tuple[str, ...] = ()) -> dict[str, Any]:
-    """The fields a YAML config file sets (nested plain values; an empty file sets none), checked as a
-    config of their own, and any of the top-level ``extra_keys`` it has (e.g. a scenario's
-    ``description``); errors name the file and the offending key."""
+def read_config_file(
+    path: str | Path, extra_keys: tuple[str, ...] = (), base: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """The fields a YAML config file sets (nested plain values; an empty file sets none) and any of the
+    top-level ``extra_keys`` it has (e.g. a scenario's ``description``), checked as a config over ``base``
+    (the fields it changes, e.g. a scenario's) or over the defaults; errors name the file and the key."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file {str(path)!r} does not exist")
@@ -709,7 +714,7 @@ def read_config_file(path: str | Path, extra_keys: tuple[str, ...] = ()) -> dict
     data = {} if data is None else data
     require(isinstance(data, Mapping), str(path), f"must be a mapping of config sections, got {type(data).__name__}")
     try:
-        from_dict({key: value for key, value in data.items() if key not in extra_keys})
+        from_dict(merge(base or {}, {key: value for key, value in data.items() if key not in extra_keys}))
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from exc
     return dict(data)
@@ -718,11 +723,7 @@ def read_config_file(path: str | Path, extra_keys: tuple[str, ...] = ()) -> dict
 def load_config(path: str | Path, base: Mapping[str, Any] | None = None) -> EnvConfig:
     """Load a YAML config file, its fields over ``base`` (nested plain values, e.g. a scenario's) or
     over the defaults; errors name the file and the offending key."""
-    data = read_config_file(path)
-    try:
-        return from_dict(merge(base or {}, data))
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from exc
+    return from_dict(merge(base or {}, read_config_file(path, base=base)))
 
 
 def save_config(config: EnvConfig, path: str | Path) -> None:

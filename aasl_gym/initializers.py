@@ -247,14 +247,21 @@ class NaiveInitializer(_BroadPrior):
 
 
 class TdoaLeastSquaresInitializer(_BroadPrior):
-    """Gauss-Newton (minimum-norm steps) on the last RD alone, from a generic point below the pod."""
+    """Gauss-Newton (minimum-norm steps) on the last RD alone, from a generic point half
+    ``initializer.position_sd`` from the pod towards the middle of ``region``'s depths (below a pod near
+    the surface, above one on the bed)."""
 
     iterations = 20
+
+    def __init__(self, config: InitializerConfig, region: Box):
+        super().__init__(config)
+        self.region = region
 
     def __call__(self, burst: Burst, rng: np.random.Generator) -> InitialEstimate:
         mobile, fixed = burst.receiver_positions[-1], burst.fixed_position
         target = burst.measurements[-1, 0]
-        position = fixed + np.array([0.0, 0.0, -0.5 * self.config.position_sd])
+        towards_middle = -1.0 if fixed[2] >= 0.5 * (self.region.z_min + self.region.z_max) else 1.0
+        position = fixed + np.array([0.0, 0.0, towards_middle * 0.5 * self.config.position_sd])
         for _ in range(self.iterations):
             gradient = geometry.ranges(position, mobile)[1] - geometry.ranges(position, fixed)[1]
             norm2 = gradient @ gradient
@@ -685,10 +692,11 @@ def make_initializer(name: str, config: InitializerConfig, region: Box, motion: 
     """The initializer called ``name``: lcmap (fitting the filter's ``motion`` model), naive, random or tdoa-ls."""
     if name == "lcmap":
         return LCMAPInitializer(config, region, motion)
+    if name == "tdoa-ls":
+        return TdoaLeastSquaresInitializer(config, region)
     simple: dict[str, Callable[[InitializerConfig], Initializer]] = {
         "naive": NaiveInitializer,
         "random": RandomInitializer,
-        "tdoa-ls": TdoaLeastSquaresInitializer,
     }
     if name not in simple:
         raise ValueError(f"unknown initializer {name!r}; allowed: ['lcmap', 'naive', 'random', 'tdoa-ls']")

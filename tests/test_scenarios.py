@@ -12,7 +12,9 @@ import train
 from aasl_gym.config import ConfigError, EnvConfig, from_dict, load_config
 from aasl_gym.env import resolve_config
 from aasl_gym.fisher import information_prior
-from aasl_gym.motion import sample_source
+from aasl_gym.initializers import Burst, make_initializer
+from aasl_gym.measurement_models import direct_measurement
+from aasl_gym.motion import sample_source, source_region
 from aasl_gym.scenarios import scenario_config, scenario_description, scenario_names
 from aasl_gym.sensors import GeometricSensor
 
@@ -51,7 +53,14 @@ def test_keywords_and_configs_override_a_scenarios_fields(tmp_path):
     changes.write_text("world:\n  bed_reflection: 0.5\n")
     assert resolve_config(str(changes), "shallow-water").world.bed_reflection == 0.5
     assert resolve_config(str(changes), "shallow-water").world.water_depth == 20.0
-    # the keyword wins over both the scenario and the file
+    # a file valid only over the scenario (a linear world needs its geometric mode) is checked over it
+    changes.write_text("world:\n  reflection_model: linear\n  bed_reflection: 0.5\n")
+    assert resolve_config(str(changes), "shallow-water").world.bed_reflection == 0.5
+    # the keyword wins over the file, which wins over the scenario, on the same field
+    changes.write_text("world:\n  reflections: true\n")
+    assert not resolve_config(str(changes), "shallow-water", reflections=False).world.reflections
+    changes.write_text("world:\n  reflections: false\n")
+    assert not resolve_config(str(changes), "shallow-water").world.reflections
     assert (
         resolve_config(str(changes), "shallow-water", measurement="geometric", multipath="phasor").filter_multipath
         == "phasor"
@@ -139,3 +148,20 @@ def test_a_source_centred_on_the_submerged_pod_starts_near_it():
         from_dict({"source": {"initial_centre": [0.0, 0.0, -80.0]}})
     with pytest.raises(ConfigError, match=r"source\.initial_centre: its ball"):
         from_dict({"source": {"initial_centre": [0.0, 0.0, -59.0], "initial_radius": 0.5}})
+    with pytest.raises(ConfigError, match=r"source\.initial_centre: its ball"):  # beyond the region's edge
+        from_dict({"source": {"initial_centre": [40.0, 0.0, -10.0], "initial_radius": 1.0}})
+
+
+def test_tdoa_ls_starts_on_the_water_side_of_a_pod_on_the_bed():
+    config = scenario_config("submerged-pod")
+    region = source_region(config.world, config.source)
+    fixed = np.array(config.world.fixed_position)
+    mobile = np.array([[12.0, 3.0, -52.0]])
+    source = np.array([5.0, -4.0, -50.0])
+    rd = np.linalg.norm(source - mobile[0]) - np.linalg.norm(source - fixed)
+    burst = Burst(
+        np.zeros(1), np.array([[rd, 0.0]]), mobile, np.zeros((1, 3)), fixed, np.eye(2), None, direct_measurement
+    )
+    start = make_initializer("tdoa-ls", config.initializer, region)(burst, np.random.default_rng(0)).states[0]
+    assert region.z_min <= start[2] <= region.z_max  # a start below the bed ends below it
+    assert np.linalg.norm(start[0:3] - mobile[0]) - np.linalg.norm(start[0:3] - fixed) == pytest.approx(rd, abs=1e-6)

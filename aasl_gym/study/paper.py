@@ -36,6 +36,13 @@ WORLD_MODELS = ("linear", "phasor")  # how the world's reflections shape RD: the
 MULTIPATH_FILTERS = ("none", "linear", "phasor")
 NAVIGATION_LEVELS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)  # m, sigma_rov
 PATROL = "helix"
+# The world each study runs in (model-error: the one whose models it compares).
+STUDY_SCENARIOS = {
+    "multipath": "shallow-water",
+    "coefficients": "shallow-water",
+    "navigation": "paper-monte-carlo",
+    "model-error": "shallow-water",
+}
 
 
 @dataclass(frozen=True)
@@ -84,7 +91,7 @@ def coefficient_variants(size: int = 6) -> tuple[Variant, ...]:
     bed = [round(float(a), 4) for a in np.linspace(0.0, 1.0, size)]
     return tuple(
         Variant(
-            f"{world} world, {model} filter, a_surf {a_surf:+.2f}, a_bed {a_bed:.2f}",
+            f"{world} world, {model} filter, a_surf {a_surf:+g}, a_bed {a_bed:g}",
             {"world": world, "filter": model, "surface_reflection": a_surf, "bed_reflection": a_bed},
             {
                 "world": {"reflection_model": world, "surface_reflection": a_surf, "bed_reflection": a_bed},
@@ -124,13 +131,15 @@ def make_study(
     variant (default: the paper's), a ``grid`` x ``grid`` coefficient grid, an optional drift and config
     ``changes`` (nested plain values) to its scenario, under its variants' own."""
     changes = changes or {}
-    if name == "multipath":
-        return Study(name, "shallow-water", trials or 100, multipath_variants(), changes)
-    if name == "coefficients":
-        return Study(name, "shallow-water", trials or 10, coefficient_variants(grid), changes)
-    if name == "navigation":
-        return Study(name, "paper-monte-carlo", trials or 10, navigation_variants(drift=drift), changes)
-    raise ValueError(f"unknown study {name!r}; allowed: ['multipath', 'coefficients', 'navigation']")
+    variants = {
+        "multipath": lambda: (trials or 100, multipath_variants()),
+        "coefficients": lambda: (trials or 10, coefficient_variants(grid)),
+        "navigation": lambda: (trials or 10, navigation_variants(drift=drift)),
+    }
+    if name not in variants:
+        raise ValueError(f"unknown study {name!r}; allowed: {sorted(variants)}")
+    count, cells = variants[name]()
+    return Study(name, STUDY_SCENARIOS[name], count, cells, changes)
 
 
 def study_jobs(study: Study, motion: str, first_seed: int) -> list[Job]:
@@ -168,7 +177,8 @@ def summarize_variants(study: Study, rows: list[Row]) -> list[Row]:
     """Per variant, in the study's order: its labels, n, the converged share, RMSE / final / maximum
     error over the converged trials (mean and sd), our success share at 1 m, the median RMSE of all (a trial
     without an estimate counts as infinite) and the mean RMSE of those with one (the heat maps' and the
-    sweep's measure: diverged trials included)."""
+    sweep's measure: diverged trials included; ``no_estimate`` counts the trials left out of it, whose filter
+    never started)."""
     summary = []
     for variant in study.variants:
         trials = [row for row in rows if row["variant"] == variant.name]
@@ -181,6 +191,7 @@ def summarize_variants(study: Study, rows: list[Row]) -> list[Row]:
         median = float(np.median([math.inf if row["rmse"] is None else row["rmse"] for row in trials] or [math.inf]))
         entry["rmse_median"] = median if math.isfinite(median) else None
         entry["rmse_all_mean"] = _mean_sd([row["rmse"] for row in trials if row["rmse"] is not None])[0]
+        entry["no_estimate"] = sum(row["rmse"] is None for row in trials)
         summary.append(entry)
     return summary
 
@@ -223,13 +234,13 @@ def model_error_samples(config: EnvConfig, count: int, rng: np.random.Generator)
 
 def model_error_map(config: EnvConfig, spacing: float = 0.25) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The ``linear`` model's RD error (m) over the vertical plane y = 0 through the pod, for still sources
-    within ``source.initial_radius`` horizontally, in the water the source may be in, heard from the
-    patrol's start (its velocity that of the helix there): cell centres x (m), z (m, top first) and the
-    error (z, x)."""
+    within ``source.initial_radius`` of ``source.initial_centre`` horizontally, in the water the source may
+    be in, heard from the patrol's start (its velocity that of the helix there): cell centres x (m), z (m,
+    top first) and the error (z, x)."""
     region = source_region(config.world, config.source)
-    radius = config.source.initial_radius
+    radius, centre = config.source.initial_radius, config.source.initial_centre[0]
     # Cell centres, half a cell off the patrol's start and the hydrophones, where the models are singular.
-    xs = np.arange(-radius + 0.5 * spacing, radius, spacing)
+    xs = np.arange(centre - radius + 0.5 * spacing, centre + radius, spacing)
     zs = np.arange(region.z_max - 0.5 * spacing, region.z_min, -spacing)
     grid_x, grid_z = np.meshgrid(xs, zs)
     sources = np.stack([grid_x, np.zeros_like(grid_x), grid_z], axis=-1)

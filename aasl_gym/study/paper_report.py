@@ -119,13 +119,16 @@ def _coefficient_figure(summary: list[Row]) -> Figure:
     axes = figure.subplots(len(WORLD_MODELS), 3)
     for row, world in enumerate(WORLD_MODELS):
         surface, bed, maps = _coefficient_grid(summary, world)
-        panels = (
-            (maps["none"], "direct-path filter", "viridis"),
-            (maps["matched"], "multipath-aware filter (the world's model)", "viridis"),
-            (maps["none"] - maps["matched"], "difference (direct - aware)", "RdBu_r"),
+        difference = maps["none"] - maps["matched"]
+        largest = float(np.nanmax(np.abs(difference))) if np.any(np.isfinite(difference)) else 1.0
+        panels: tuple[tuple[np.ndarray, str, str, dict[str, float]], ...] = (
+            (maps["none"], "direct-path filter", "viridis", {}),
+            (maps["matched"], "multipath-aware filter (the world's model)", "viridis", {}),
+            (difference, "difference (direct - aware)", "RdBu_r", {"vmin": -largest, "vmax": largest}),  # 0: white
         )
-        for ax, (grid, title, colours) in zip(axes[row], panels):
-            image = ax.imshow(grid, origin="lower", aspect="auto", cmap=colours, extent=_extent(bed, surface))
+        for ax, (grid, title, colours, limits) in zip(axes[row], panels):
+            extent = _extent(bed, surface)
+            image = ax.imshow(grid, origin="lower", aspect="auto", cmap=colours, extent=extent, **limits)
             figure.colorbar(image, ax=ax, label="mean RMSE (m)")
             ax.set_title(f"{world} world: {title}", fontsize=9)
             ax.set_xlabel("a_bed")
@@ -153,13 +156,14 @@ def _navigation_figure(summary: list[Row], rows: list[Row]) -> Figure:
         levels = np.array([e["sigma_rov"] for e in cells])
         rmse = [[r["rmse"] for r in rows if r["variant"] == e["variant"] and r["rmse"] is not None] for e in cells]
         means = np.array([np.mean(v) if v else np.nan for v in rmse])
-        spread = np.array([np.std(v) if v else np.nan for v in rmse])
+        spread = np.array([np.std(v, ddof=1) if len(v) > 1 else 0.0 for v in rmse])
         label = compensation + (f", drift {drift:g} m/sqrt(s)" if drift else "")
         style = "--" if drift else "-"
         ax.plot(levels, means, style, marker="o", color=f"C{index}", label=label)
-        ax.fill_between(levels, means - spread, means + spread, color=f"C{index}", alpha=0.15)
+        low = np.maximum(means - spread, 0.1 * means)  # the log axis has no room for a band below zero
+        ax.fill_between(levels, low, means + spread, color=f"C{index}", alpha=0.15)
     ax.set_xlabel("sigma_rov (m); velocity sd 0.4 sigma_rov")
-    ax.set_ylabel("RMSE (m): mean ± sd of all trials")
+    ax.set_ylabel("RMSE (m): mean ± sd of the trials with an estimate")
     ax.set_yscale("log")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
