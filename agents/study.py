@@ -40,14 +40,20 @@ def run_episode(job: Job) -> Row:
 
 def run_trial(job: Job) -> Row:
     """One trial of a paper study (:mod:`aasl_gym.study.paper`): :func:`run_episode`'s row with the job's
-    ``variant`` and the episode's largest position error (m) once the filter had started, ``max_error``."""
-    row, errors = _play(job, keep_errors=True)
+    ``variant``, the episode's largest position error (m) once the filter had started, ``max_error``, and
+    the RMSE (m) over its second half, ``rmse_second_half`` (the tracking once the start is long past)."""
+    row, steps = _play(job, keep_errors=True)
     row["variant"] = job.variant
-    row["max_error"] = _finite_or_none(max(errors)) if errors else None
+    errors = np.array([error for _, error in steps])
+    row["max_error"] = _finite_or_none(errors.max()) if errors.size else None
+    half = 0.5 * job.config["episode"]["duration"]
+    late = np.array([error for time, error in steps if time >= half])
+    row["rmse_second_half"] = _finite_or_none(np.sqrt(np.mean(late**2))) if late.size else None
     return row
 
 
-def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[float]]:
+def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[tuple[float, float]]]:
+    """The episode's row and, with ``keep_errors``, (time s, position error m) of each step the filter ran."""
     policy = trained_model(job.policy) if ":" in job.policy else None
     patrol = ENV_IDS[policy.env_id] if policy is not None else None
     env = AASLEnv(
@@ -60,11 +66,11 @@ def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[float]]:
     )
     if policy is None:
         policy = make_policy(job.policy, env.config, seed=job.seed)
-    errors: list[float] = []
+    errors: list[tuple[float, float]] = []
 
     def keep(reward: float, info: dict) -> None:
         if info["initialized"]:
-            errors.append(float(info["position_error"]))
+            errors.append((float(info["time"]), float(info["position_error"])))
 
     info = play_episode(env, policy, job.seed, on_step=keep if keep_errors else None)
     env.close()

@@ -40,7 +40,7 @@ def test_the_variants_span_what_the_paper_varies():
 def test_a_trial_diverges_as_the_paper_says():
     study = make_study("multipath", trials=1)
     name = study.variants[0].name
-    row = {"variant": name, "final_error": 1.0, "max_error": 40.0, "success": {"1.0": False}}
+    row = {"variant": name, "final_error": 1.0, "max_error": 40.0, "rmse_second_half": 2.0, "success": {"1.0": False}}
     rows = [row | {"rmse": DIVERGENCE_RMSE - 0.1}, row | {"rmse": DIVERGENCE_RMSE + 0.1}, row | {"rmse": None}]
     entry = summarize_variants(study, rows)[0]
     assert entry["n"] == 3 and entry["converged_rate"] == pytest.approx(1 / 3)
@@ -109,11 +109,12 @@ def test_a_tiny_multipath_study_has_its_table_and_the_same_rows_on_two_workers(t
     assert paper.main([*common, "--workers", "2", "--out", str(tmp_path / "two")]) == 0
     one, two = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("one", "two"))
     assert one["trials"] == two["trials"] and len(one["trials"]) == 12
-    assert {"rmse", "final_error", "max_error", "variant", "seed"} <= set(one["trials"][0])
+    assert {"rmse", "final_error", "max_error", "rmse_second_half", "variant", "seed"} <= set(one["trials"][0])
     columns = {"variant", "world", "filter", "n", "converged_rate", "rmse_mean", "rmse_sd", "final_error_mean"}
-    assert columns | {"max_error_mean", "max_error_sd", "success_rate_1m"} <= set(one["summary"][0])
+    assert columns | {"max_error_mean", "rmse_second_half_mean", "success_rate_1m"} <= set(one["summary"][0])
     report = (tmp_path / "one" / "report.md").read_text()
-    assert "| world | filter | n | converged | RMSE (m) | final error (m) | maximum error (m) | success 1 m |" in report
+    header = "| world | filter | n | converged | RMSE (m) | final error (m) | maximum error (m) | RMSE, 2nd half (m) |"
+    assert header in report
     assert "| paper's world | multipath-aware | 100 % | 0.98 ± 2.15 | 0.15 ± 0.97 | 9.27 ± 22.40 |" in report
     capsys.readouterr()
     three = [*common[:2], "3", *common[3:], "--workers", "1"]

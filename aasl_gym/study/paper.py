@@ -174,18 +174,18 @@ def converged(row: Row) -> bool:
 
 
 def summarize_variants(study: Study, rows: list[Row]) -> list[Row]:
-    """Per variant, in the study's order: its labels, n, the converged share, RMSE / final / maximum
-    error over the converged trials (mean and sd), our success share at 1 m, the median RMSE of all (a trial
-    without an estimate counts as infinite) and the mean RMSE of those with one (the heat maps' and the
-    sweep's measure: diverged trials included; ``no_estimate`` counts the trials left out of it, whose filter
-    never started)."""
+    """Per variant, in the study's order: its labels, n, the converged share; RMSE, final and maximum error
+    and the RMSE over the episode's second half, over the converged trials (mean and sd); our success share
+    at 1 m, the median RMSE of all (a trial without an estimate counts as infinite) and the mean RMSE of those
+    with one (the heat maps' and the sweep's measure: diverged trials included; ``no_estimate`` counts the
+    trials left out of it, whose filter never started)."""
     summary = []
     for variant in study.variants:
         trials = [row for row in rows if row["variant"] == variant.name]
         kept = [row for row in trials if converged(row)]
         entry: Row = {"variant": variant.name, **variant.labels, "n": len(trials)}
         entry["converged_rate"] = len(kept) / len(trials) if trials else None
-        for metric in ("rmse", "final_error", "max_error"):
+        for metric in ("rmse", "final_error", "max_error", "rmse_second_half"):
             entry[f"{metric}_mean"], entry[f"{metric}_sd"] = _mean_sd([row[metric] for row in kept])
         entry["success_rate_1m"] = sum(row["success"]["1.0"] for row in trials) / len(trials) if trials else None
         median = float(np.median([math.inf if row["rmse"] is None else row["rmse"] for row in trials] or [math.inf]))
