@@ -13,7 +13,6 @@ comparisons are paired. Example (the reference paper's initializer study):
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
 import sys
 from pathlib import Path
@@ -33,7 +32,13 @@ from aasl_gym.study.jobs import (
 from aasl_gym.study.log import EpisodeLog, LogMismatch
 from aasl_gym.study.plots import pop_trajectories, write_plots, write_trajectory_plots
 from aasl_gym.study.report import console_table, write_report, write_results
-from aasl_gym.study.runner import BACKENDS, Backend, MissingBackend, run_jobs
+from aasl_gym.study.runner import (
+    Backend,
+    MissingBackend,
+    add_backend_arguments,
+    check_backend_arguments,
+    run_jobs,
+)
 from aasl_gym.study.stats import study_comparisons, summarize
 from agents import POLICIES as SCRIPTED_POLICIES  # what agents.make_policy builds by name
 from agents.study import run_episode, trained_model
@@ -70,14 +75,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=None,
         help="YAML config; with --scenario, the fields to change (default: configs/default.yaml, or the scenario)",
     )
-    add("--workers", type=int, default=None, help="processes (default: every core this process may use)")
-    add(
-        "--backend",
-        choices=BACKENDS,
-        default="process",
-        help="process: a local process pool; ray: Ray tasks (pip install -e '.[distributed]')",
-    )
-    add("--ray-address", default=None, help="a Ray cluster to join (default: start Ray locally with --workers CPUs)")
+    add_backend_arguments(parser)
     add("--out", type=Path, default=Path("results/evaluation"))
     add("--no-plots", action="store_true")
     add("--trajectories", type=int, default=2, help="episodes per policy and motion drawn in top and depth views")
@@ -92,12 +90,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     if args.trajectories < 0:
         parser.error(f"--trajectories must be >= 0, got {args.trajectories}")
-    if args.workers is None:
-        args.workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    if args.workers < 1:
-        parser.error(f"--workers must be >= 1, got {args.workers}")
-    if args.ray_address is not None and args.backend != "ray":
-        parser.error("--ray-address needs --backend ray")
+    check_backend_arguments(parser, args)
     for policy in args.policies:
         if ":" not in policy and policy not in SCRIPTED_POLICIES:
             parser.error(f"--policies: unknown policy {policy!r}; allowed: {' '.join(SCRIPTED_POLICIES)}, or ALGO:PATH")

@@ -19,7 +19,6 @@ model's error against the exact tone model over the shallow-water scenario.
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
 import sys
 from pathlib import Path
@@ -30,7 +29,13 @@ from aasl_gym.study.jobs import MOTIONS, Job, episode_key
 from aasl_gym.study.log import EpisodeLog, LogMismatch
 from aasl_gym.study.paper import STUDY_SCENARIOS, make_study, study_header, study_jobs, summarize_variants
 from aasl_gym.study.paper_report import write_model_error, write_study
-from aasl_gym.study.runner import BACKENDS, Backend, MissingBackend, run_jobs
+from aasl_gym.study.runner import (
+    Backend,
+    MissingBackend,
+    add_backend_arguments,
+    check_backend_arguments,
+    run_jobs,
+)
 from agents.study import run_trial
 
 ROOT = Path(__file__).resolve().parent
@@ -55,9 +60,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     add("--samples", type=int, default=20000, help="model-error: source and receiver pairs in the histogram")
     add("--config", type=Path, default=None, help="YAML file of fields to change in the study's scenario")
-    add("--workers", type=int, default=None, help="processes (default: every core this process may use)")
-    add("--backend", choices=BACKENDS, default="process")
-    add("--ray-address", default=None, help="a Ray cluster to join (default: start Ray locally with --workers CPUs)")
+    add_backend_arguments(parser)
     add("--out", type=Path, default=None, help="default: results/paper/STUDY")
     add("--no-plots", action="store_true")
     add("--resume", action="store_true", help="reuse the trials already in OUT/episodes.jsonl")
@@ -68,12 +71,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             parser.error(f"--{name} must be >= {low}, got {value}")
     if not 0 <= args.drift < float("inf"):
         parser.error(f"--drift must be a finite number >= 0, got {args.drift}")
-    if args.workers is None:
-        args.workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    if args.workers < 1:
-        parser.error(f"--workers must be >= 1, got {args.workers}")
-    if args.ray_address is not None and args.backend != "ray":
-        parser.error("--ray-address needs --backend ray")
+    check_backend_arguments(parser, args)
     args.out = args.out or ROOT / "results" / "paper" / args.study
     return args
 

@@ -9,6 +9,7 @@ module: both must stay at module level.
 
 from __future__ import annotations
 
+import argparse
 import logging
 import multiprocessing
 import os
@@ -47,6 +48,32 @@ class Backend:
     workers: int = 1
     ray_address: str | None = None
     code_root: Path | None = None
+
+
+def add_backend_arguments(parser: argparse.ArgumentParser) -> None:
+    """The study CLIs' ``--workers``, ``--backend`` and ``--ray-address``."""
+    parser.add_argument(
+        "--workers", type=int, default=None, help="processes (default: every core this process may use)"
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="process",
+        help="process: a local process pool; ray: Ray tasks (pip install -e '.[distributed]')",
+    )
+    parser.add_argument(
+        "--ray-address", default=None, help="a Ray cluster to join (default: start Ray locally with --workers CPUs)"
+    )
+
+
+def check_backend_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Fill in ``--workers`` (the cores this process may use) and reject what cannot run, naming the flag."""
+    if args.workers is None:
+        args.workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if args.workers < 1:
+        parser.error(f"--workers must be >= 1, got {args.workers}")
+    if args.ray_address is not None and args.backend != "ray":
+        parser.error("--ray-address needs --backend ray")
 
 
 def run_jobs(
