@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from aasl_gym.config import INITIALIZERS, MEASUREMENT_MODES, MULTIPATH_MODELS, ConfigError, EnvConfig
-from aasl_gym.scenarios import command_line_config, scenario_names
+from aasl_gym.scenarios import add_scenario_arguments, command_line_config
 from aasl_gym.study.jobs import (
     FILTER_CHOICES,
     MOTIONS,
@@ -68,13 +68,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=None,
         help="filter motion model; 'matched' uses cv for static/cv, ca for ca, ctrv for ctrv",
     )
-    add("--scenario", choices=scenario_names(), default=None, help="a named world (configs/scenarios/)")
-    add(
-        "--config",
-        type=Path,
-        default=None,
-        help="YAML config; with --scenario, the fields to change (default: configs/default.yaml, or the scenario)",
-    )
+    add_scenario_arguments(parser)
     add_backend_arguments(parser)
     add("--out", type=Path, default=Path("results/evaluation"))
     add("--no-plots", action="store_true")
@@ -137,9 +131,7 @@ def run(args: argparse.Namespace, jobs: list[Job]) -> list[dict]:
 
     args.out.mkdir(parents=True, exist_ok=True)
     log = EpisodeLog(args.out / "episodes.jsonl", jobs[0].config)
-    done = log.read() if args.resume else {}
-    if not done:
-        log.start()
+    done = log.open(args.resume)
     reused = sum(episode_key(job) in done for job in jobs)
     print(
         f"{len(jobs)} episodes: {len(args.policies)} policies x {len(args.initializers)} initializers x "

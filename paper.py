@@ -82,9 +82,7 @@ def run(args: argparse.Namespace, jobs: list[Job], header: dict) -> list[dict]:
 
     args.out.mkdir(parents=True, exist_ok=True)
     log = EpisodeLog(args.out / "episodes.jsonl", header)
-    done = log.read() if args.resume else {}
-    if not done:
-        log.start()
+    done = log.open(args.resume)
     reused = sum(episode_key(job) in done for job in jobs)
     print(f"{len(jobs)} trials" + (f" ({reused} from {log.path})" if done else ""))
     backend = Backend(args.backend, args.workers, args.ray_address, code_root=ROOT)

@@ -23,7 +23,7 @@ import yaml
 from aasl_gym.config import ConfigError, save_config
 from aasl_gym.io import atomic_write_text
 from aasl_gym.registration import ENV_IDS
-from aasl_gym.scenarios import command_line_config, scenario_names
+from aasl_gym.scenarios import add_scenario_arguments, command_line_config
 from agents.training import ALGORITHMS, load_training, training_record
 
 ROOT = Path(__file__).resolve().parent
@@ -35,13 +35,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--env", choices=sorted(ENV_IDS), default=None, help="default: schedule.env in --hyperparameters"
     )
-    parser.add_argument("--scenario", choices=scenario_names(), default=None, help="a named world (configs/scenarios/)")
-    parser.add_argument(
-        "--config",
-        type=Path,
-        default=None,
-        help="env config (YAML); with --scenario, the fields to change (default: configs/default.yaml or the scenario)",
-    )
+    add_scenario_arguments(parser)
     parser.add_argument("--hyperparameters", type=Path, default=ROOT / "configs" / "training.yaml")
     parser.add_argument("--timesteps", type=int, default=None, help="default: the schedule in --hyperparameters")
     parser.add_argument("--n-envs", type=int, default=None)

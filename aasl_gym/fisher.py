@@ -16,6 +16,7 @@ import numpy as np
 
 from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
+from aasl_gym.motion import source_region
 
 
 def information_prior(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -25,9 +26,9 @@ def information_prior(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
     whole-period offset (sd: the start radius) and a small clock-rate bias."""
     ini, radius = config.initializer, config.source.initial_radius
     centre = np.asarray(config.source.initial_centre, dtype=float)
-    towards_middle = -1.0 if centre[2] >= -0.5 * config.world.water_depth else 1.0
+    step = source_region(config.world, config.source).towards_middle(centre[2]) * 0.5 * radius
     mean = np.zeros(8)
-    mean[0:3] = centre + np.array([0.0, 0.0, towards_middle * 0.5 * radius])
+    mean[0:3] = centre + np.array([0.0, 0.0, step])
     covariance = np.diag([ini.position_sd**2] * 3 + [ini.velocity_prior_sd**2] * 3 + [radius**2, ini.rate_bias_sd**2])
     return mean, covariance
 

@@ -260,8 +260,8 @@ class TdoaLeastSquaresInitializer(_BroadPrior):
     def __call__(self, burst: Burst, rng: np.random.Generator) -> InitialEstimate:
         mobile, fixed = burst.receiver_positions[-1], burst.fixed_position
         target = burst.measurements[-1, 0]
-        towards_middle = -1.0 if fixed[2] >= 0.5 * (self.region.z_min + self.region.z_max) else 1.0
-        position = fixed + np.array([0.0, 0.0, towards_middle * 0.5 * self.config.position_sd])
+        step = self.region.towards_middle(fixed[2]) * 0.5 * self.config.position_sd
+        position = fixed + np.array([0.0, 0.0, step])
         for _ in range(self.iterations):
             gradient = geometry.ranges(position, mobile)[1] - geometry.ranges(position, fixed)[1]
             norm2 = gradient @ gradient

@@ -38,6 +38,10 @@ class Box:
     z_min: float
     z_max: float
 
+    def towards_middle(self, z: float) -> float:
+        """-1 (down) from a depth ``z`` (m) at or above the middle of the box's depths, +1 (up) from below it."""
+        return -1.0 if z >= 0.5 * (self.z_min + self.z_max) else 1.0
+
 
 def source_region(world: WorldConfig, source: SourceConfig) -> Box:
     """Where a source may start (and where plausible initial estimates lie)."""

@@ -11,6 +11,7 @@ The files live in the checkout's ``configs/scenarios/``; a wheel carries them as
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -61,6 +62,17 @@ def scenario_config(name: str, changes: Mapping[str, Any] | None = None) -> EnvC
         raise ConfigError(f"scenario {name!r}: {exc}") from exc
 
 
+def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
+    """The CLIs' ``--scenario`` and ``--config`` (read by :func:`command_line_config`)."""
+    parser.add_argument("--scenario", choices=scenario_names(), default=None, help="a named world (configs/scenarios/)")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="YAML config; with --scenario, the fields to change (default: configs/default.yaml or the scenario)",
+    )
+
+
 def command_line_config(scenario: str | None, config_file: str | Path | None, default_file: str | Path) -> EnvConfig:
     """The config a CLI runs with: ``--config FILE``'s fields over ``--scenario NAME``'s; with neither
     option, ``default_file``. A :class:`ConfigError` names the option at fault."""
@@ -69,7 +81,7 @@ def command_line_config(scenario: str | None, config_file: str | Path | None, de
     except ConfigError as exc:
         raise ConfigError(f"--scenario: {exc}") from exc
     if config_file is None and scenario is not None:
-        return scenario_config(scenario)
+        return from_dict(fields)  # checked as it was read
     try:
         return load_config(config_file or default_file, base=fields)
     except ConfigError as exc:

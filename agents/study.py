@@ -9,6 +9,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from aasl_gym import metrics
 from aasl_gym.env import AASLEnv
 from aasl_gym.registration import ENV_IDS
 from aasl_gym.study.jobs import Job
@@ -48,7 +49,7 @@ def run_trial(job: Job) -> Row:
     row["max_error"] = _finite_or_none(errors.max()) if errors.size else None
     half = 0.5 * job.config["episode"]["duration"]
     late = np.array([error for time, error in steps if time >= half])
-    row["rmse_second_half"] = _finite_or_none(np.sqrt(np.mean(late**2))) if late.size else None
+    row["rmse_second_half"] = _finite_or_none(metrics.rmse(late))
     return row
 
 

@@ -26,6 +26,13 @@ class EpisodeLog:
         self.path = Path(path)
         self.header = {"config": json.loads(json.dumps(config))}  # as it reads back: tuples are lists
 
+    def open(self, resume: bool) -> dict[tuple, Row]:
+        """The rows to reuse: with ``resume`` those of :meth:`read`; without (or with none), a new log."""
+        done = self.read() if resume else {}
+        if not done:
+            self.start()
+        return done
+
     def start(self) -> None:
         """A new log holding only the config line (replacing any earlier one)."""
         atomic_write_text(self.path, json.dumps(self.header) + "\n")

@@ -10,7 +10,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from aasl_gym.config import EnvConfig, to_dict
-from aasl_gym.io import atomic_write, atomic_write_json, atomic_write_text
+from aasl_gym.io import atomic_write_json, atomic_write_text
 from aasl_gym.scenarios import scenario_config, scenario_description
 from aasl_gym.study.log import Row
 from aasl_gym.study.paper import (
@@ -20,7 +20,9 @@ from aasl_gym.study.paper import (
     model_error_map,
     model_error_samples,
 )
+from aasl_gym.study.plots import save_png
 
+DPI = 110
 QUANTILES = (50, 90, 99)  # %, of the models' absolute errors
 # The reference paper's multipath table (100 trials; metrics over its converged trials): what ours stands beside.
 PAPER_MULTIPATH = (
@@ -42,11 +44,6 @@ def _fmt(value: float | None, digits: int = 2) -> str:
 
 def _pm(entry: Row, metric: str) -> str:
     return f"{_fmt(entry[metric + '_mean'])} ± {_fmt(entry[metric + '_sd'])}"
-
-
-def _save(figure: Figure, out: Path, name: str) -> str:
-    atomic_write(out / name, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
-    return name
 
 
 def _setup(study: Study, motion: str, config: EnvConfig, seeds: list[int]) -> list[str]:
@@ -185,7 +182,7 @@ def write_study(
         "coefficients": lambda: _coefficient_figure(summary),
         "navigation": lambda: _navigation_figure(summary, rows),
     }
-    names = [_save(figures[study.name](), out, f"{study.name}.png")] if plots and study.name in figures else []
+    names = [save_png(figures[study.name](), out, f"{study.name}.png", DPI)] if plots and study.name in figures else []
     variants = [{"name": v.name, "labels": v.labels, "changes": v.changes} for v in study.variants]
     results: dict[str, Any] = {"command": command, "study": study.name, "scenario": study.scenario, "motion": motion}
     results |= {"config": to_dict(config), "variants": variants, "trials": rows, "summary": summary}
@@ -241,7 +238,7 @@ def write_model_error(
     beyond = 3 * config.measurement.range_difference_sd
     stats = _error_statistics(samples, beyond)
     out.mkdir(parents=True, exist_ok=True)
-    names = [_save(_model_error_figure(config, samples), out, "model_error.png")] if plots else []
+    names = [save_png(_model_error_figure(config, samples), out, "model_error.png", DPI)] if plots else []
     results = {"command": command, "samples": count, "rd_threshold": beyond, "statistics": stats}
     atomic_write_json(out / "results.json", results)
     lines = [

@@ -22,7 +22,8 @@ def _motion_order(motion: str) -> int:
     return MOTIONS.index(motion) if motion in MOTIONS else 99
 
 
-def _save(figure: Figure, out: Path, name: str, dpi: int) -> str:
+def save_png(figure: Figure, out: Path, name: str, dpi: int) -> str:
+    """Write ``figure`` to ``out/name`` atomically; returns ``name``."""
     atomic_write(out / name, lambda tmp: figure.savefig(tmp, dpi=dpi, bbox_inches="tight", format="png"))
     return name
 
@@ -37,8 +38,8 @@ def write_plots(out: Path, rows: list[Row], summary: list[Row]) -> list[str]:
     groups = sorted({(s["policy"], s["initializer"]) for s in summary}, key=str)
     motions = sorted({s["motion"] for s in summary}, key=_motion_order)
     return [
-        _save(_convergence_boxes(rows, groups, motions), out, "convergence_time.png", 110),
-        _save(_success_curves(summary, groups, motions), out, "success_vs_threshold.png", 110),
+        save_png(_convergence_boxes(rows, groups, motions), out, "convergence_time.png", 110),
+        save_png(_success_curves(summary, groups, motions), out, "success_vs_threshold.png", 110),
     ]
 
 
@@ -119,5 +120,5 @@ def write_trajectory_plots(out: Path, trajectories: list[Trajectory], config: En
                 config,
                 title=f"{policy}, {motion} source, seed {seed}",
             )
-        names.append(_save(figure, out, f"trajectories_{motion}.png", 80))
+        names.append(save_png(figure, out, f"trajectories_{motion}.png", 80))
     return names
