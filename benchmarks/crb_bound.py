@@ -17,6 +17,11 @@ The phasor model is evaluated at each frame's centre, not averaged over the fram
 signal-mode model is.
 The default ``direct`` is the direct-path model with the tracker's fixed R (the free field's bound).
 
+``--nav-sd`` (m, one or more sigma_rov levels; velocity sd 0.4 sigma_rov, the matched model) gives the
+bound with the navigation error in R_eff, as the receiver-uncertainty study (``paper.py navigation``)
+runs it, one row per motion and level, and the bound's RMSE over the episode from the initializer's
+burst on (the root of the mean trace, averaged over the episodes): what the study's RMSE can reach.
+
 Reported per motion: the share of episodes whose bound on the position error sd (the root of its
 covariance's trace) falls below ``--target`` metres and stays there to the end, the median time it
 first does, and the mean chance that an efficient estimator - its error Gaussian with the bound's
@@ -26,6 +31,8 @@ reach: a bound's sd of 0.8 m still leaves the error beyond 1 m in about a third 
     python benchmarks/crb_bound.py --motions static cv ca ctrv --episodes 100 --seed 1000 \
         --config configs/initializer_study.yaml
     python benchmarks/crb_bound.py --model matched --config configs/default.yaml --seed 710000 --target 1.0
+    python benchmarks/crb_bound.py --scenario paper-monte-carlo --model matched --motions cv --seed 800000 \
+        --target 1.0 --nav-sd 0 0.1 0.2 0.3 0.4 0.5 0.6 0.7
 """
 
 from __future__ import annotations
@@ -37,7 +44,7 @@ import numpy as np
 from tqdm import tqdm
 
 from aasl_gym import geometry
-from aasl_gym.config import EnvConfig, load_config
+from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.io import atomic_write_text
 from aasl_gym.measurement_models import (
@@ -50,6 +57,7 @@ from aasl_gym.measurement_models import (
 )
 from aasl_gym.motion import SourceState, advance_source
 from aasl_gym.patrols import REFERENCES
+from aasl_gym.scenarios import add_scenario_arguments, command_line_config
 from tracker_check import MATCHED  # run as a script: benchmarks/ is on sys.path
 
 
@@ -209,20 +217,41 @@ def print_table(header: list[str], rows, out: str | None) -> None:
         atomic_write_text(out, "\n".join(lines) + "\n")
 
 
-def main(argv: list[str] | None = None) -> None:
+def episode_rmse_bound(covariance: np.ndarray, dt: float, start: float) -> float:
+    """The bound on an episode's RMSE (m) over the steps from time ``start`` (s) on: the root of the mean
+    trace of ``covariance`` (steps, 3, 3; m^2), the bound after each step of ``dt`` s."""
+    times = dt * np.arange(1, len(covariance) + 1)
+    kept = covariance[times >= start - 1e-9]
+    return float(np.sqrt(np.mean(np.trace(kept, axis1=1, axis2=2))))
+
+
+def navigation_config(base: EnvConfig, level: float) -> EnvConfig:
+    """``base`` with a navigation error of sd ``level`` (m; velocity sd from the config's ratio) and R_eff."""
+    receiver = {"nav_position_sd": level, "nav_velocity_sd": None}
+    return base.replace(receiver=receiver, filter={"compensate_navigation": True})
+
+
+def parse_arguments(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=["static", "cv", "ca", "ctrv"]
     )
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=1000)
-    parser.add_argument("--config", default="configs/initializer_study.yaml")
+    add_scenario_arguments(parser)
     parser.add_argument("--target", type=float, default=0.5, help="bound on the position error sd, m")
     parser.add_argument(
         "--model",
         choices=["direct", "matched"],
         default="direct",
         help="measurement model: the direct path, or the world's own (phasor with reflections)",
+    )
+    parser.add_argument(
+        "--nav-sd",
+        type=float,
+        nargs="+",
+        default=None,
+        help="navigation error levels sigma_rov (m, >= 0; with --model matched): one row per motion and level",
     )
     parser.add_argument("--patrol", default="helix", choices=sorted(REFERENCES), help="the scripted patrol")
     parser.add_argument("--out", default=None, help="markdown file for the table")
@@ -232,42 +261,71 @@ def main(argv: list[str] | None = None) -> None:
         help="run the config's tracker (its initializer, the filter matched to the motion) beside the bound",
     )
     args = parser.parse_args(argv)
-    base = load_config(args.config)
+    if args.nav_sd is not None:
+        if args.model != "matched":
+            parser.error("--nav-sd: the navigation error enters R_eff only with --model matched")
+        if any(not np.isfinite(level) or level < 0 for level in args.nav_sd):
+            parser.error(f"--nav-sd: levels must be finite and >= 0 m, got {args.nav_sd}")
+    return args
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_arguments(argv)
+    base = command_line_config(args.scenario, args.config, "configs/initializer_study.yaml")
+    levels = [None] if args.nav_sd is None else args.nav_sd
     tracker_columns = f" tracker's success at {args.target} m | its RMSE after convergence / the bound's |"
+    navigation = args.nav_sd is not None
     header = [
-        f"| motion | episodes | bound < {args.target} m to the end | median first time (s) "
-        f"| efficient estimator within {args.target} m at the end |" + (tracker_columns if args.tracker else ""),
-        "|---|---|---|---|---|" + ("---|---|" if args.tracker else ""),
+        ("| motion | sigma_rov (m) |" if navigation else "| motion |")
+        + f" episodes | bound < {args.target} m to the end | median first time (s) "
+        f"| efficient estimator within {args.target} m at the end |"
+        + (" bound's RMSE from the burst on (m) |" if navigation else "")
+        + (tracker_columns if args.tracker else ""),
+        ("|---|---|" if navigation else "|---|")
+        + "---|---|---|---|"
+        + ("---|" if navigation else "")
+        + ("---|---|" if args.tracker else ""),
     ]
     rng = np.random.default_rng(args.seed)
 
     def rows():
         for motion in args.motions:
-            env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol=args.patrol)
-            if args.tracker:
-                matched = base.replace(source={"motion": motion}, filter={"motion_model": MATCHED[motion]})
-                tracker_env = AASLEnv(matched, patrol=args.patrol)
-            times, efficient, successes, squared = [], [], [], np.zeros(2)
-            for seed in tqdm(range(args.seed, args.seed + args.episodes), desc=motion, unit="ep", leave=False):
-                covariance = episode_covariance(env, seed, args.model)
-                if args.tracker:
-                    success, squares = tracked_squares(tracker_env, seed, covariance, args.target)
-                    successes.append(success)
-                    squared += squares
-                bound = np.sqrt(np.trace(covariance, axis1=1, axis2=2))
-                above = np.nonzero(bound >= args.target)[0]
-                last_above = above[-1] if len(above) else -1
-                times.append((last_above + 2) * env.dt if last_above + 1 < len(bound) else np.inf)
-                efficient.append(efficient_success(covariance[-1], args.target, rng))
-            times = np.array(times)
-            reached = np.isfinite(times)
-            median = np.median(times[reached]) if reached.any() else float("nan")
-            line = f"| {motion} | {len(times)} | {reached.mean():.0%} | {median:.1f} | {np.mean(efficient):.0%} |"
-            if args.tracker:
-                line += f" {np.mean(successes):.0%} | {np.sqrt(squared[0] / squared[1]):.2f} |"
-            yield line
+            for level in levels:
+                config = base if level is None else navigation_config(base, level)
+                yield motion_row(args, config, motion, level, rng)
 
     print_table(header, rows(), args.out)
+
+
+def motion_row(args: argparse.Namespace, base: EnvConfig, motion: str, level: float | None, rng) -> str:
+    """One table row: the bound (and the tracker, with ``--tracker``) over the episodes of ``motion``."""
+    env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol=args.patrol)
+    if args.tracker:
+        matched = base.replace(source={"motion": motion}, filter={"motion_model": MATCHED[motion]})
+        tracker_env = AASLEnv(matched, patrol=args.patrol)
+    times, efficient, successes, squared, rmse_bounds = [], [], [], np.zeros(2), []
+    for seed in tqdm(range(args.seed, args.seed + args.episodes), desc=motion, unit="ep", leave=False):
+        covariance = episode_covariance(env, seed, args.model)
+        if args.tracker:
+            success, squares = tracked_squares(tracker_env, seed, covariance, args.target)
+            successes.append(success)
+            squared += squares
+        bound = np.sqrt(np.trace(covariance, axis1=1, axis2=2))
+        above = np.nonzero(bound >= args.target)[0]
+        last_above = above[-1] if len(above) else -1
+        times.append((last_above + 2) * env.dt if last_above + 1 < len(bound) else np.inf)
+        efficient.append(efficient_success(covariance[-1], args.target, rng))
+        rmse_bounds.append(episode_rmse_bound(covariance, env.dt, base.initializer.burst_duration))
+    times = np.array(times)
+    reached = np.isfinite(times)
+    median = np.median(times[reached]) if reached.any() else float("nan")
+    line = f"| {motion} |" + ("" if level is None else f" {level:g} |")
+    line += f" {len(times)} | {reached.mean():.0%} | {median:.1f} | {np.mean(efficient):.0%} |"
+    if level is not None:
+        line += f" {np.mean(rmse_bounds):.2f} |"
+    if args.tracker:
+        line += f" {np.mean(successes):.0%} | {np.sqrt(squared[0] / squared[1]):.2f} |"
+    return line
 
 
 if __name__ == "__main__":
