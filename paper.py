@@ -4,6 +4,7 @@
     python paper.py coefficients [--trials 10] [--grid 6] ...
     python paper.py navigation   [--trials 10] [--drift 0.02] ...   (the paper's 10 trials; 100 for a firm figure)
     python paper.py model-error  [--samples 20000] [--out DIR]
+    python paper.py arrays       [--trials 100] ...   (fixed arrays against the tracker, issue 15)
 
 ``--config FILE`` changes fields of the study's scenario, e.g. a shorter episode; the fields a study varies
 (the reflection model and coefficients, the filter's multipath model, the navigation error and its
@@ -13,7 +14,8 @@ Each trial study runs its variants (``aasl_gym.study.paper``) on the same seeds 
 process pool or Ray (``--backend ray``) like ``evaluate.py``; each finished trial is appended to
 OUT/episodes.jsonl, from which ``--resume`` continues. Writes OUT/report.md (the paper's metrics beside
 the paper's numbers), OUT/results.json and the plots. ``model-error`` runs no episodes: it maps the first-order
-model's error against the exact tone model over the shallow-water scenario.
+model's error against the exact tone model over the shallow-water scenario. ``arrays`` runs the tracker's
+trials with the paper's fixed-array baselines on the same sources (``aasl_gym.study.array_comparison``).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from pathlib import Path
 
 from aasl_gym.config import ConfigError, read_config_file
 from aasl_gym.scenarios import scenario_fields
+from aasl_gym.study.array_report import write_array_comparison
 from aasl_gym.study.jobs import MOTIONS, Job, episode_key
 from aasl_gym.study.log import EpisodeLog, LogMismatch
 from aasl_gym.study.paper import STUDY_SCENARIOS, make_study, study_header, study_jobs, summarize_variants
@@ -36,10 +39,10 @@ from aasl_gym.study.runner import (
     check_backend_arguments,
     run_jobs,
 )
-from agents.study import run_trial
+from agents.study import run_array_trial, run_trial
 
 ROOT = Path(__file__).resolve().parent
-STUDIES = ("multipath", "coefficients", "navigation", "model-error")
+STUDIES = ("multipath", "coefficients", "navigation", "model-error", "arrays")
 FIRST_SEED = 800000  # none of the tracker's tuning or held-out seeds (issue 12) lie here
 
 
@@ -47,7 +50,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add = parser.add_argument
     add("study", choices=STUDIES)
-    add("--trials", type=int, default=None, help="seeds per variant (default: the paper's: 100, 10, 10)")
+    add("--trials", type=int, default=None, help="seeds per variant (default: the paper's: 100, 10, 10; arrays 100)")
     add("--seed", type=int, default=FIRST_SEED, help="first seed")
     add("--motion", choices=MOTIONS, default="cv", help="the source's motion (the filter's model matches it)")
     add("--grid", type=int, default=6, help="coefficients: values of a_surf and of a_bed")
@@ -86,8 +89,9 @@ def run(args: argparse.Namespace, jobs: list[Job], header: dict) -> list[dict]:
     reused = sum(episode_key(job) in done for job in jobs)
     print(f"{len(jobs)} trials" + (f" ({reused} from {log.path})" if done else ""))
     backend = Backend(args.backend, args.workers, args.ray_address, code_root=ROOT)
+    trial = run_array_trial if args.study == "arrays" else run_trial
     with tqdm(total=len(jobs), initial=reused, desc="trials", unit="trial") as progress:
-        return run_jobs(jobs, run_trial, done, log, backend, on_row=progress.update)
+        return run_jobs(jobs, trial, done, log, backend, on_row=progress.update)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -113,6 +117,10 @@ def main(argv: list[str] | None = None) -> int:
     except MissingBackend:
         print("error: --backend ray needs Ray: pip install -e '.[distributed]'", file=sys.stderr)
         return 2
+    if args.study == "arrays":
+        written = write_array_comparison(args.out, command, study, args.motion, rows, plots=not args.no_plots)
+        print(f"wrote {', '.join(str(path) for path in written)}")
+        return 0
     summary = summarize_variants(study, rows)
     written = write_study(args.out, command, study, args.motion, rows, summary, plots=not args.no_plots)
     print(f"wrote {', '.join(str(path) for path in written)}")

@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
 from aasl_gym import metrics
 from aasl_gym.env import AASLEnv
 from aasl_gym.registration import ENV_IDS
+from aasl_gym.study.array_comparison import array_row, time_calls
 from aasl_gym.study.jobs import Job
 from aasl_gym.study.log import Row
 from agents.policies import make_policy
@@ -53,8 +55,41 @@ def run_trial(job: Job) -> Row:
     return row
 
 
-def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[tuple[float, float]]]:
-    """The episode's row and, with ``keep_errors``, (time s, position error m) of each step the filter ran."""
+def run_array_trial(job: Job) -> Row:
+    """One trial of the fixed-array comparison (:mod:`aasl_gym.study.array_comparison`): the tracker's
+    episode (its RMSE, second-half RMSE, median error and ``tracker.step`` times, under ``tracker``) and both
+    array baselines on the same source track over the steps the tracker's RMSE counts."""
+    env, policy = _episode_env(job)
+    seconds = time_calls(env.tracker, "step")
+    steps: list[tuple[float, float, np.ndarray]] = []
+
+    def keep(reward: float, info: dict) -> None:
+        if info["initialized"]:
+            steps.append((float(info["time"]), float(info["position_error"]), info["source_position"]))
+
+    info = play_episode(env, policy, job.seed, on_step=keep)
+    env.close()
+    row = _episode_row(job, env, info)
+    errors = np.array([error for _, error, _ in steps])
+    half = 0.5 * job.config["episode"]["duration"]
+    row["tracker"] = {
+        "rmse": row["rmse"],
+        "rmse_second_half": _finite_or_none(metrics.rmse(np.array([e for t, e, _ in steps if t >= half]))),
+        "median_error": _finite_or_none(np.median(errors)) if errors.size else None,
+        "ms_mean": 1e3 * float(np.mean(seconds)),
+        "ms_median": 1e3 * float(np.median(seconds)),
+    }
+    sources = np.array([source for _, _, source in steps]).reshape(-1, 3)
+    world = env.config.world
+    wavelength = world.sound_speed / env.config.source.frequency
+    sd = env.config.measurement.range_difference_sd
+    row.update(array_row(sources, env.fixed, wavelength, sd, job.seed))
+    return row
+
+
+def _episode_env(job: Job) -> tuple[AASLEnv, Any]:
+    """The job's env and the policy that flies it. Scripted policies fly ``AASL-v0``; a trained model flies
+    the env it was trained on (a residual model needs its patrol's command)."""
     policy = trained_model(job.policy) if ":" in job.policy else None
     patrol = ENV_IDS[policy.env_id] if policy is not None else None
     env = AASLEnv(
@@ -67,6 +102,12 @@ def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[tuple[float, f
     )
     if policy is None:
         policy = make_policy(job.policy, env.config, seed=job.seed)
+    return env, policy
+
+
+def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[tuple[float, float]]]:
+    """The episode's row and, with ``keep_errors``, (time s, position error m) of each step the filter ran."""
+    env, policy = _episode_env(job)
     errors: list[tuple[float, float]] = []
 
     def keep(reward: float, info: dict) -> None:
@@ -75,6 +116,11 @@ def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[tuple[float, f
 
     info = play_episode(env, policy, job.seed, on_step=keep if keep_errors else None)
     env.close()
+    return _episode_row(job, env, info), errors
+
+
+def _episode_row(job: Job, env: AASLEnv, info: dict) -> Row:
+    """The results row of the job's finished episode on ``env``, ``info`` its last step's."""
     row = {
         "policy": job.policy,
         "initializer": job.initializer,
@@ -91,4 +137,4 @@ def _play(job: Job, keep_errors: bool = False) -> tuple[Row, list[tuple[float, f
     }
     if job.record:
         row["trajectory"] = {name: np.asarray(points).tolist() for name, points in env.trajectory.items()}
-    return row, errors
+    return row

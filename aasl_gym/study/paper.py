@@ -42,6 +42,7 @@ STUDY_SCENARIOS = {
     "coefficients": "shallow-water",
     "navigation": "paper-monte-carlo",
     "model-error": "shallow-water",
+    "arrays": "paper-monte-carlo",
 }
 
 
@@ -127,7 +128,7 @@ def navigation_variants(levels: tuple[float, ...] = NAVIGATION_LEVELS, drift: fl
 def make_study(
     name: str, trials: int | None = None, grid: int = 6, drift: float = 0.0, changes: dict[str, Any] | None = None
 ) -> Study:
-    """The study ``name`` (``multipath``, ``coefficients`` or ``navigation``) with ``trials`` seeds per
+    """The study ``name`` (``multipath``, ``coefficients``, ``navigation`` or ``arrays``) with ``trials`` seeds per
     variant (default: the paper's), a ``grid`` x ``grid`` coefficient grid, an optional drift and config
     ``changes`` (nested plain values) to its scenario, under its variants' own."""
     changes = changes or {}
@@ -135,6 +136,7 @@ def make_study(
         "multipath": lambda: (trials or 100, multipath_variants()),
         "coefficients": lambda: (trials or 10, coefficient_variants(grid)),
         "navigation": lambda: (trials or 10, navigation_variants(drift=drift)),
+        "arrays": lambda: (trials or 100, (Variant("arrays", {}),)),  # the scenario itself; the arrays ride along
     }
     if name not in variants:
         raise ValueError(f"unknown study {name!r}; allowed: {sorted(variants)}")
