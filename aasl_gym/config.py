@@ -19,14 +19,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "mixed")
+SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "uturn", "mixed")
 MEASUREMENT_MODES = ("signal", "geometric")
 SIGNAL_PATHS = ("fast", "hardware")
 INITIALIZERS = ("lcmap", "naive", "random", "tdoa-ls")
 MULTIPATH_MODELS = ("matched", "none", "linear", "phasor")
 REFLECTION_MODELS = ("phasor", "linear")
 FILTER_MODELS = ("cv", "ca", "ctrv")
-PATROLS = ("helix", "spiral", "circle", "lawnmower")
+PATROLS = ("helix", "spiral", "circle", "lawnmower", "square")
 RECEIVER_KINDS = ("auv", "surface")
 WAVEFORMS = ("tone", "sweep", "hop")
 FAULT_KINDS = ("none", "silent", "clipped", "dropped")
@@ -116,7 +116,7 @@ class WorldConfig:
 class SourceConfig:
     """The adversary's sound source: its tone and its (true) motion."""
 
-    motion: str = "cv"  # static, cv, ca, ctrv, mixed (one of the four, drawn per episode)
+    motion: str = "cv"  # static, cv, ca, ctrv, uturn, mixed (one of the first four, drawn per episode)
     frequency: float = 1000.0  # Hz, tone f0
     waveform: str = "tone"  # tone, sweep, hop (signal mode; geometric mode treats all as tone-ambiguous only for tone)
     initial_radius: float = 20.0  # m, initial position uniform in the ball of this radius about initial_centre
@@ -124,7 +124,12 @@ class SourceConfig:
     speed_range: tuple[float, float] = (0.2, 1.5)  # m/s, cv / ca initial / ctrv speed
     max_speed: float = 1.5  # m/s, ca never exceeds it
     acceleration_range: tuple[float, float] = (0.002, 0.01)  # m/s^2, ca
-    turn_rate_range: tuple[float, float] = (0.02, 0.1)  # rad/s, ctrv, sign drawn at random
+    turn_rate_range: tuple[float, float] = (0.02, 0.1)  # rad/s, ctrv and uturn, sign drawn at random
+    uturn_start_range: tuple[float, float] = (20.0, 60.0)  # s, uturn: straight this long before its half-turn
+    depth: float | None = None  # m below the surface the source is held at (hung from a vessel); None: free
+    # m: a moving source is redrawn until its path over the whole episode keeps this close to initial_centre
+    # horizontally (the lake trial's paths within 15 m of the dock); None: any path
+    keep_within: float | None = None
     max_vertical_speed: float = 0.1  # m/s
     boundary_margin: float = 2.0  # m, the source keeps this far from surface and bed (and region edge if confined)
     confined: bool = False  # reflect at the surveillance region's edge; by default a moving source may leave it
@@ -145,6 +150,16 @@ class SourceConfig:
         )
         _ordered_pair(self.acceleration_range, "source.acceleration_range")
         _ordered_pair(self.turn_rate_range, "source.turn_rate_range")
+        _ordered_pair(self.uturn_start_range, "source.uturn_start_range")
+        if self.depth is not None:
+            _positive(self.depth, "source.depth")
+        if self.keep_within is not None:
+            _positive(self.keep_within, "source.keep_within")
+            require(
+                self.keep_within > self.initial_radius,
+                "source.keep_within",
+                f"must exceed source.initial_radius = {self.initial_radius} m, or no moving source can start inside it",
+            )
         _non_negative(self.max_vertical_speed, "source.max_vertical_speed")
         _non_negative(self.boundary_margin, "source.boundary_margin")
         require(math.isfinite(self.range_rate_bias), "source.range_rate_bias", "must be finite")
@@ -465,7 +480,7 @@ class PatrolConfig:
     reports/patrol_sweep/)."""
 
     speed: float = 1.0  # m/s along the path
-    radius: float = 15.0  # m, helix / circle radius
+    radius: float = 15.0  # m, helix / circle radius, the square's half-side
     depth_min: float = 2.0  # m, helix depth oscillates between depth_min and depth_max
     depth_max: float = 12.0  # m
     depth_period: float = 30.0  # s, period of the helix's depth oscillation
@@ -535,6 +550,7 @@ class EnvConfig:
             f"must not exceed world.region_radius = {self.world.region_radius}",
         )
         self._check_initial_centre()
+        self._check_source_depth()
         require(
             2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source"
         )
@@ -554,6 +570,18 @@ class EnvConfig:
             "fault.kind",
             f"{self.fault.kind!r} corrupts a synthesized frame: it needs measurement.mode signal",
         )
+
+    def _check_source_depth(self) -> None:
+        """A source held at a depth must be held where it may be: ``source.boundary_margin`` below the
+        surface and above the bed."""
+        depth, margin, water = self.source.depth, self.source.boundary_margin, self.world.water_depth
+        if depth is not None:
+            require(
+                margin <= depth <= water - margin,
+                "source.depth",
+                f"{depth} m must lie source.boundary_margin = {margin} m below the surface and above the bed "
+                f"(world.water_depth = {water} m)",
+            )
 
     def _check_initial_centre(self) -> None:
         """The ball the source starts in must reach the water it may start in - the region less

@@ -117,7 +117,7 @@ class AASLEnv(gym.Env):
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: a velocity command scaled by ``receiver.max_speed`` (1.5 m/s). In
     ``AASL-v0`` it is the command itself; in the patrol variants (``AASL-Helix-v0``, ``-Spiral-``,
-    ``-Circle-``, ``-Lawnmower-``) it is a residual added to the pattern's command, so a zero action
+    ``-Circle-``, ``-Lawnmower-``, ``-Square-``) it is a residual added to the pattern's command, so a zero action
     flies the pure scripted patrol; in ``AASL-Greedy-v0`` it is a residual on the information-greedy
     planner's command (``aasl_gym.planning``, from the estimate; the helix until the filter starts), so
     a zero action flies what the ``greedy`` policy flies. The command's norm is clipped to the speed
@@ -246,7 +246,7 @@ class AASLEnv(gym.Env):
         super().reset(seed=seed)
         cfg = self.config
         rng = self.np_random
-        self.source = sample_source(rng, cfg.source.motion, cfg.source, cfg.world)
+        self.source = sample_source(rng, cfg.source.motion, cfg.source, cfg.world, cfg.episode.duration)
         self.receiver_position = np.asarray(cfg.receiver.start_position, dtype=float).copy()
         if self.surface_depth is not None:
             self.receiver_position[2] = -self.surface_depth

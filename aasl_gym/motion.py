@@ -1,7 +1,10 @@
 """Truth motion of the source, kinematics of the robot, and the robot's navigation error.
 
 Source motions (SPEC section 5): static, constant velocity (CV), constant acceleration (CA, speed capped
-at ``max_speed``) and constant turn rate and velocity (CTRV, a horizontal coordinated turn). Each follows
+at ``max_speed``) and constant turn rate and velocity (CTRV, a horizontal coordinated turn); and the lake
+trial's U-turn (``uturn``: straight, then a horizontal half-turn at a constant rate, then straight back
+along a parallel line ``2 |v| / |omega|`` to the side). A source with ``source.depth`` set is held at that
+depth (hung from a vessel): it starts there and moves horizontally. Each follows
 its model exactly, except that surface and bed (less a margin) reflect it specularly. A fast source can
 therefore leave the surveillance region within an episode (1.5 m/s for 120 s is 180 m); with
 ``source.confined`` it reflects at the region's edge too - a loitering attacker, but no longer the
@@ -26,8 +29,10 @@ class SourceState:
     position: np.ndarray  # m
     velocity: np.ndarray  # m/s
     acceleration: np.ndarray  # m/s^2 (ca only; zero otherwise)
-    turn_rate: float  # rad/s about z (ctrv only)
+    turn_rate: float  # rad/s about z (ctrv, uturn)
     max_speed: float  # m/s
+    turn_start: float = 0.0  # s until a uturn's half-turn begins (counts down)
+    turn_left: float = 0.0  # s of a uturn's half-turn still to fly (pi / |turn_rate| before it begins)
 
 
 @dataclass(frozen=True)
@@ -75,25 +80,59 @@ def _direction_velocity(rng: np.random.Generator, speed: float, max_vertical_spe
     return np.array([horizontal * np.cos(heading), horizontal * np.sin(heading), vertical])
 
 
-def sample_source(rng: np.random.Generator, kind: str, source: SourceConfig, world: WorldConfig) -> SourceState:
-    """Draw a source motion of ``kind`` (``mixed`` draws one of the four) with seeded random parameters."""
+PATH_CHECK_STEP = 0.5  # s between the points at which a drawn path is held to source.keep_within
+PATH_DRAWS = 1000  # draws before a source.keep_within that no path meets is reported
+
+
+def sample_source(
+    rng: np.random.Generator, kind: str, source: SourceConfig, world: WorldConfig, duration: float = 0.0
+) -> SourceState:
+    """Draw a source motion of ``kind`` (``mixed`` draws one of the four of :data:`MOTION_KINDS`) with seeded
+    random parameters; with ``source.keep_within`` set, a moving source is redrawn until its path over the
+    ``duration`` (s) of the episode keeps that close to ``source.initial_centre`` horizontally."""
     if kind == "mixed":
         kind = MOTION_KINDS[int(rng.integers(len(MOTION_KINDS)))]
+    for _ in range(PATH_DRAWS):
+        state = _draw_source(rng, kind, source, world)
+        if source.keep_within is None or _keeps_within(state, source, world, duration):
+            return state
+    raise ValueError(
+        f"no {kind} path drawn in {PATH_DRAWS} tries kept within source.keep_within = {source.keep_within} m for "
+        f"{duration} s: lower source.speed_range or raise keep_within"
+    )
+
+
+def _keeps_within(state: SourceState, source: SourceConfig, world: WorldConfig, duration: float) -> bool:
+    centre, region = np.asarray(source.initial_centre[:2]), motion_region(world, source)
+    for _ in range(int(np.ceil(duration / PATH_CHECK_STEP)) + 1):
+        if np.hypot(*(state.position[:2] - centre)) > source.keep_within:
+            return False
+        state = advance_source(state, PATH_CHECK_STEP, region)
+    return True
+
+
+def _draw_source(rng: np.random.Generator, kind: str, source: SourceConfig, world: WorldConfig) -> SourceState:
     region = source_region(world, source)
     position = sample_initial_position(rng, source.initial_radius, region, np.asarray(source.initial_centre))
+    held = source.depth is not None
+    if source.depth is not None:
+        position[2] = -source.depth
     zero = np.zeros(3)
     if kind == "static":
         return SourceState(kind, position, zero, zero, 0.0, source.max_speed)
     speed = rng.uniform(*source.speed_range)
-    velocity = _direction_velocity(rng, speed, source.max_vertical_speed)
+    velocity = _direction_velocity(rng, speed, 0.0 if held else source.max_vertical_speed)
     acceleration = zero
     turn_rate = 0.0
     if kind == "ca":
         acceleration = _direction_velocity(rng, rng.uniform(*source.acceleration_range), 0.0)
-    elif kind == "ctrv":
+    elif kind in ("ctrv", "uturn"):
         turn_rate = rng.choice([-1.0, 1.0]) * rng.uniform(*source.turn_rate_range)
     elif kind != "cv":
-        raise ValueError(f"unknown source motion {kind!r}; allowed: {list(MOTION_KINDS) + ['mixed']}")
+        raise ValueError(f"unknown source motion {kind!r}; allowed: {list(MOTION_KINDS) + ['uturn', 'mixed']}")
+    if kind == "uturn":
+        start, half_turn = rng.uniform(*source.uturn_start_range), np.pi / abs(turn_rate)
+        return SourceState(kind, position, velocity, acceleration, turn_rate, source.max_speed, start, half_turn)
     return SourceState(kind, position, velocity, acceleration, turn_rate, source.max_speed)
 
 
@@ -137,6 +176,8 @@ def advance_source(state: SourceState, dt: float, region: Box) -> SourceState:
     """The source ``dt`` seconds later (exact within the model, specular reflection at ``region``'s bounds)."""
     if state.kind == "static":
         return state
+    if state.kind == "uturn":
+        return _advance_uturn(state, dt, region)
     position, velocity, acceleration = state.position, state.velocity, state.acceleration
     if state.kind == "ctrv":
         displacement, velocity = coordinated_turn_displacement(velocity, state.turn_rate, dt)
@@ -150,6 +191,26 @@ def advance_source(state: SourceState, dt: float, region: Box) -> SourceState:
             acceleration = np.zeros(3)
     position, velocity, acceleration = _reflect(position, velocity, acceleration, region)
     return replace(state, position=position, velocity=velocity, acceleration=acceleration)
+
+
+def _advance_uturn(state: SourceState, dt: float, region: Box) -> SourceState:
+    """A U-turn ``dt`` s on: straight until its half-turn begins, the turn, straight again (a step may hold all)."""
+    position, velocity = state.position, state.velocity
+    straight = min(dt, state.turn_start)
+    position = position + velocity * straight
+    turning = min(dt - straight, state.turn_left)
+    if turning > 0:
+        displacement, velocity = coordinated_turn_displacement(velocity, state.turn_rate, turning)
+        position = position + displacement
+    position = position + velocity * (dt - straight - turning)
+    position, velocity, _ = _reflect(position, velocity, np.zeros(3), region)
+    return replace(
+        state,
+        position=position,
+        velocity=velocity,
+        turn_start=state.turn_start - straight,
+        turn_left=state.turn_left - turning,
+    )
 
 
 def receiver_region(world: WorldConfig, receiver: ReceiverConfig) -> Box:
@@ -170,8 +231,8 @@ def move_receiver(
 
     The command's norm is clipped to ``max_speed``; a surface vessel (``surface_depth`` given) ignores z
     and holds its hydrophone at that depth. The new position is projected back into ``region`` and out
-    of the keep-out sphere. Returns the new position, the velocity actually achieved and whether a
-    limit was hit.
+    of the keep-out sphere (a surface vessel horizontally, at its depth). Returns the new position, the
+    velocity actually achieved and whether a limit was hit.
     """
     command = np.asarray(command, dtype=float)
     if surface_depth is not None:
@@ -193,8 +254,13 @@ def move_receiver(
     offset = target - keep_out_centre
     distance = np.linalg.norm(offset)
     if distance < keep_out_radius:
-        direction = offset / distance if distance > 1e-9 else np.array([1.0, 0.0, 0.0])
-        target = keep_out_centre + direction * keep_out_radius
+        if surface_depth is not None:  # out to the sphere's circle at the vessel's depth
+            across = np.hypot(offset[0], offset[1])
+            heading = offset[:2] / across if across > 1e-9 else np.array([1.0, 0.0])
+            target[:2] = keep_out_centre[:2] + heading * np.sqrt(keep_out_radius**2 - offset[2] ** 2)
+        else:
+            direction = offset / distance if distance > 1e-9 else np.array([1.0, 0.0, 0.0])
+            target = keep_out_centre + direction * keep_out_radius
         hit = True
     return target, (target - position) / dt, hit
 

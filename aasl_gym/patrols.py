@@ -9,6 +9,8 @@ Depths in :class:`~aasl_gym.config.PatrolConfig` are positive numbers of metres 
 * ``circle``: the same circle at the mid depth.
 * ``spiral``: radius going linearly out from ``spiral_radius_min`` to ``spiral_radius_max`` and back
   (period ``spiral_period``) at constant tangential ``speed`` and ``spiral_depth``.
+* ``square``: the square of half-side ``radius`` about the centre (the circle's circumscribed square), at
+  the mid depth, counter-clockwise at ``speed`` from the point of it nearest the robot's start.
 * ``lawnmower``: back-and-forth legs ``lawnmower_spacing`` apart across a square of side
   ``lawnmower_width``, at the mid depth, travelled forth and back.
 """
@@ -103,19 +105,54 @@ def lawnmower_waypoints(config: PatrolConfig, geometry: PatrolGeometry) -> np.nd
     return np.array([[geometry.centre[0] + x, geometry.centre[1] + y, depth] for x, y in points])
 
 
-def lawnmower_reference(t: float, config: PatrolConfig, geometry: PatrolGeometry):
-    waypoints = lawnmower_waypoints(config, geometry)
+def _along_polyline(waypoints: np.ndarray, distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """The point (m) ``distance`` m along the polyline through ``waypoints`` (N, 3) and its unit tangent."""
     segments = np.diff(waypoints, axis=0)
     lengths = np.linalg.norm(segments, axis=1)
-    total = lengths.sum()
+    index = min(int(np.searchsorted(np.cumsum(lengths), distance, side="right")), len(lengths) - 1)
+    along = distance - (np.cumsum(lengths)[index] - lengths[index])
+    tangent = segments[index] / lengths[index]
+    return waypoints[index] + along * tangent, tangent
+
+
+def _distance_along_nearest(waypoints: np.ndarray, point: np.ndarray) -> float:
+    """How far (m) along the polyline through ``waypoints`` (N, 3) its point nearest ``point`` lies, in plan view."""
+    best, best_distance, travelled = math.inf, 0.0, 0.0
+    for start, end in zip(waypoints[:-1, :2], waypoints[1:, :2]):
+        segment = end - start
+        length = float(np.linalg.norm(segment))
+        along = float(np.clip((point[:2] - start) @ segment / length**2, 0.0, 1.0)) * length
+        gap = float(np.linalg.norm(start + along * segment / length - point[:2]))
+        if gap < best:
+            best, best_distance = gap, travelled + along
+        travelled += length
+    return best_distance
+
+
+def lawnmower_reference(t: float, config: PatrolConfig, geometry: PatrolGeometry):
+    waypoints = lawnmower_waypoints(config, geometry)
+    total = np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum()
     travelled = (config.speed * t) % (2 * total)
     direction = 1.0
     if travelled > total:  # on the way back
         travelled, direction = 2 * total - travelled, -1.0
-    index = min(int(np.searchsorted(np.cumsum(lengths), travelled, side="right")), len(lengths) - 1)
-    along = travelled - (np.cumsum(lengths)[index] - lengths[index])
-    tangent = segments[index] / lengths[index]
-    return waypoints[index] + along * tangent, direction * config.speed * tangent
+    point, tangent = _along_polyline(waypoints, travelled)
+    return point, direction * config.speed * tangent
+
+
+def square_waypoints(config: PatrolConfig, geometry: PatrolGeometry) -> np.ndarray:
+    """The square's corners counter-clockwise from (+r, -r), closed (5, 3; m), ``r`` = ``config.radius``."""
+    half, depth = config.radius, -0.5 * (config.depth_min + config.depth_max)
+    corners = [(half, -half), (half, half), (-half, half), (-half, -half), (half, -half)]
+    return np.array([[geometry.centre[0] + x, geometry.centre[1] + y, depth] for x, y in corners])
+
+
+def square_reference(t: float, config: PatrolConfig, geometry: PatrolGeometry):
+    waypoints = square_waypoints(config, geometry)
+    perimeter = 8.0 * config.radius
+    start = _distance_along_nearest(waypoints, geometry.start)
+    point, tangent = _along_polyline(waypoints, (start + config.speed * t) % perimeter)
+    return point, config.speed * tangent
 
 
 REFERENCES = {
@@ -123,6 +160,7 @@ REFERENCES = {
     "circle": circle_reference,
     "spiral": spiral_reference,
     "lawnmower": lawnmower_reference,
+    "square": square_reference,
 }
 
 

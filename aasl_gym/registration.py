@@ -13,6 +13,7 @@ ENV_IDS: dict[str, str | None] = {
     "AASL-Spiral-v0": "spiral",
     "AASL-Circle-v0": "circle",
     "AASL-Lawnmower-v0": "lawnmower",
+    "AASL-Square-v0": "square",
     "AASL-Greedy-v0": "greedy",
 }
 

@@ -34,7 +34,7 @@ def test_default_yaml_is_the_default():
         ({"bogus": {}}, r"bogus: unknown key"),
         (
             {"source": {"motion": "zigzag"}},
-            r"source\.motion: 'zigzag' is not one of \['static', 'cv', 'ca', 'ctrv', 'mixed'\]",
+            r"source\.motion: 'zigzag' is not one of \['static', 'cv', 'ca', 'ctrv', 'uturn', 'mixed'\]",
         ),
         ({"world": {"water_depth": -5}}, r"world\.water_depth: must be a finite number > 0"),
         ({"world": {"reflections": "yes"}}, r"world\.reflections: must be true or false"),

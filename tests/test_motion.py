@@ -117,3 +117,51 @@ def test_navigation_error_statistics():
     errors = np.array([np.concatenate(nav.report(rng, np.zeros(3), np.zeros(3), 0.2)) for _ in range(20000)])
     np.testing.assert_allclose(errors[:, :3].std(axis=0), 0.1, rtol=0.05)
     np.testing.assert_allclose(errors[:, 3:].std(axis=0), 0.04, rtol=0.05)
+
+
+@pytest.mark.parametrize("turn_rate", [0.1, -0.07])
+def test_a_uturn_comes_back_on_a_parallel_line_two_turn_radii_aside(turn_rate):
+    """Straight for t1, a half-turn at omega (pi / |omega| s), straight for s: closed form
+    p0 + v t1 + (2 / omega) R90(v) - v s, velocity -v; steps that straddle the turn's ends included."""
+    v, p0, t1 = np.array([0.3, 0.1, 0.0]), np.array([1.0, -2.0, -0.6]), 7.1
+    half_turn = np.pi / abs(turn_rate)
+    state = SourceState("uturn", p0, v, np.zeros(3), turn_rate, 1.5, t1, half_turn)
+    steps = 400
+    for _ in range(steps):
+        state = advance_source(state, 0.2, BIG)
+    after = steps * 0.2 - t1 - half_turn
+    assert after > 0
+    left = np.array([-v[1], v[0], 0.0])
+    np.testing.assert_allclose(state.position, p0 + v * t1 + 2.0 / turn_rate * left - v * after, atol=1e-9)
+    np.testing.assert_allclose(state.velocity, -v, atol=1e-12)
+    mid = SourceState("uturn", p0, v, np.zeros(3), turn_rate, 1.5, t1, half_turn)
+    for _ in range(1000):  # steps of an uneven length that land on the turn's middle
+        mid = advance_source(mid, (t1 + 0.5 * half_turn) / 1000, BIG)
+    radius = np.linalg.norm(v) / abs(turn_rate)  # half-way round: a quarter turn, velocity at 90 degrees
+    np.testing.assert_allclose(mid.velocity, np.sign(turn_rate) * left, atol=1e-9)
+    np.testing.assert_allclose(
+        mid.position, p0 + v * t1 + radius * (v / np.linalg.norm(v)) + (1 / turn_rate) * left, atol=1e-9
+    )
+
+
+def test_a_source_held_at_a_depth_starts_there_and_moves_horizontally():
+    source = dataclasses.replace(SOURCE, depth=0.6, initial_centre=(0.0, 0.0, -0.6), boundary_margin=0.3)
+    world = dataclasses.replace(WORLD, water_depth=3.0)
+    rng = np.random.default_rng(4)
+    for kind in ("static", "cv", "ctrv", "uturn"):
+        state = sample_source(rng, kind, source, world)
+        assert state.position[2] == -0.6 and state.velocity[2] == 0.0
+        assert state.kind == kind
+    uturn = sample_source(rng, "uturn", source, world)
+    assert SOURCE.uturn_start_range[0] <= uturn.turn_start <= SOURCE.uturn_start_range[1]
+    assert uturn.turn_left == pytest.approx(np.pi / abs(uturn.turn_rate))
+
+
+def test_a_surface_vessel_is_kept_out_of_the_sphere_at_its_own_depth():
+    centre, radius, depth = np.array([0.0, 0.0, -0.91]), 1.0, 1.19
+    region = Box(6.0, -2.5, -0.5)
+    position, _, hit = move_receiver(
+        np.array([1.2, 0.0, -depth]), np.array([-1.0, 0.0, 0.3]), 0.5, 1.0, region, centre, radius, depth
+    )
+    assert hit and position[2] == -depth and position[1] == 0.0
+    assert position[0] == pytest.approx(np.sqrt(radius**2 - (depth - 0.91) ** 2))  # on the sphere, at its depth

@@ -11,7 +11,10 @@ import paper
 from aasl_gym.scenarios import scenario_config
 from aasl_gym.study.paper import (
     DIVERGENCE_RMSE,
+    LAKE_MOTIONS,
+    LAKE_PATROLS,
     coefficient_variants,
+    lake_variants,
     make_study,
     model_error,
     multipath_variants,
@@ -181,3 +184,20 @@ def test_bad_flags_are_named(tmp_path, capsys):
     bad.write_text("world:\n  depth: 20\n")
     assert paper.main(["multipath", "--config", str(bad), "--out", str(tmp_path)]) == 2
     assert "world.depth: unknown key" in capsys.readouterr().err
+
+
+def test_a_tiny_lake_study_runs_every_patrol_and_path_with_both_filters(tmp_path):
+    short = tmp_path / "short.yaml"
+    short.write_text(SHORT)
+    assert paper.main(["lake", "--trials", "1", "--config", str(short), "--out", str(tmp_path)]) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    cells = {(e["patrol"], e["motion"], e["filter"]) for e in results["summary"]}
+    assert cells == {(p, m, f) for p in LAKE_PATROLS for m in LAKE_MOTIONS for f in ("nominal", "compensated")}
+    assert {row["policy"] for row in results["trials"]} == set(LAKE_PATROLS)
+    assert not any("trajectory" in row for row in results["trials"])  # they went into the plots
+    assert {f"trajectories_{motion}.png" for motion in LAKE_MOTIONS} <= {p.name for p in tmp_path.iterdir()}
+    report = (tmp_path / "report.md").read_text()
+    assert "| filter | trials | with an estimate | RMSE (m): mean ± sd | median RMSE (m) | success 1 m " in report
+    assert "| nominal | 12 | " in report and report.count("| 1.37 |") == 1
+    config = make_study("lake").config(lake_variants()[0])
+    assert config.filter.multipath == "none" and not config.filter.compensate_navigation

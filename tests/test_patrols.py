@@ -1,5 +1,6 @@
 """Scripted patrol references against closed-form geometry: each path's velocity is its time derivative,
-the helix and spiral keep their radii, depths and speed, the lawnmower stays on its square."""
+the helix and spiral keep their radii, depths and speed, the lawnmower stays on its square, the square
+runs its perimeter."""
 
 import numpy as np
 import pytest
@@ -22,8 +23,8 @@ def test_the_reference_velocity_is_the_derivative_of_the_path(pattern):
             REFERENCES[pattern](t - step, CONFIG, GEOMETRY)[0],
         )
         numeric = (ahead - behind) / (2 * step)
-        if pattern == "lawnmower" and np.linalg.norm(numeric) > 1.01 * CONFIG.speed:
-            continue  # a corner between the two points
+        if pattern in ("lawnmower", "square") and abs(np.linalg.norm(numeric) - CONFIG.speed) > 0.01 * CONFIG.speed:
+            continue  # a corner or a turn back between the two points
         np.testing.assert_allclose(REFERENCES[pattern](t, CONFIG, GEOMETRY)[1], numeric, atol=1e-4)
 
 
@@ -61,3 +62,24 @@ def test_the_lawnmower_stays_on_its_square_and_the_command_pulls_onto_the_path()
     )
     with pytest.raises(ValueError, match="unknown patrol pattern 'zigzag'"):
         patrol_command("zigzag", 0.0, off, CONFIG, GEOMETRY)
+
+
+def test_the_square_runs_its_perimeter_from_the_point_nearest_the_start():
+    """On the square of half-side ``radius`` at the mid depth, at ``speed``, once round in 8 r / speed,
+    from the start's nearest point: the start (15, 0) is the middle of the +x side, so a quarter of a side
+    later the robot is at (r, r / 2) heading +y, and at the corner (r, r) half a side after the start."""
+    half, depth = CONFIG.radius, -0.5 * (CONFIG.depth_min + CONFIG.depth_max)
+    for t in TIMES:
+        position, velocity = REFERENCES["square"](t, CONFIG, GEOMETRY)
+        assert np.max(np.abs(position[:2])) == pytest.approx(half)
+        assert position[2] == depth and np.linalg.norm(velocity) == pytest.approx(CONFIG.speed)
+    quarter_side = 0.5 * half / CONFIG.speed
+    position, velocity = REFERENCES["square"](quarter_side, CONFIG, GEOMETRY)
+    np.testing.assert_allclose(position, [half, 0.5 * half, depth], atol=1e-12)
+    np.testing.assert_allclose(velocity, [0.0, CONFIG.speed, 0.0], atol=1e-12)
+    corner = REFERENCES["square"](2 * quarter_side, CONFIG, GEOMETRY)[0]
+    np.testing.assert_allclose(corner, [half, half, depth], atol=1e-9)
+    lap = 8 * half / CONFIG.speed
+    np.testing.assert_allclose(
+        REFERENCES["square"](lap + 1.0, CONFIG, GEOMETRY)[0], REFERENCES["square"](1.0, CONFIG, GEOMETRY)[0], atol=1e-9
+    )

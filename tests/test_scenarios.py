@@ -165,3 +165,32 @@ def test_tdoa_ls_starts_on_the_water_side_of_a_pod_on_the_bed():
     start = make_initializer("tdoa-ls", config.initializer, region)(burst, np.random.default_rng(0)).states[0]
     assert region.z_min <= start[2] <= region.z_max  # a start below the bed ends below it
     assert np.linalg.norm(start[0:3] - mobile[0]) - np.linalg.norm(start[0:3] - fixed) == pytest.approx(rd, abs=1e-6)
+
+
+def test_the_lake_holds_its_source_at_depth_within_15_m_of_the_dock():
+    env = gym.make("AASL-Square-v0", scenario="lake", source_motion="uturn").unwrapped
+    config = env.config
+    assert config.world.fixed_position == (0.0, 0.0, -0.91) and config.receiver.surface_depth == 1.19
+    assert (config.world.surface_reflection, config.world.bed_reflection) == (-0.98, 0.2)
+    for seed in range(3):
+        env.reset(seed=seed)
+        assert env.source.position[2] == -0.6 and env.receiver_position[2] == -1.19
+        for _ in range(env.max_steps):
+            env._move(np.zeros(3))  # the truth motions alone: no need to run the tracker here
+            assert np.hypot(*env.source.position[:2]) <= 15.0 + 1e-9
+            assert env.source.position[2] == -0.6
+            assert env.receiver_position[2] == -1.19  # a surface vessel, kept out of the dock's 1 m sphere
+            assert np.linalg.norm(env.receiver_position - env.fixed) >= 1.0 - 1e-9
+            assert np.hypot(*env.receiver_position[:2]) <= 6.0 + 1e-9
+
+
+def test_held_and_kept_sources_are_checked():
+    with pytest.raises(ConfigError, match=r"source\.depth: 2\.9 m must lie source\.boundary_margin = 0\.3 m"):
+        gym.make("AASL-v0", scenario="lake", config={"source": {"depth": 2.9}})
+    with pytest.raises(ConfigError, match=r"source\.keep_within: must exceed source\.initial_radius = 12\.0 m"):
+        gym.make("AASL-v0", scenario="lake", config={"source": {"keep_within": 10.0}})
+    env = gym.make(
+        "AASL-v0", scenario="lake", source_motion="cv", config={"source": {"speed_range": [5.0, 6.0], "max_speed": 6.0}}
+    )
+    with pytest.raises(ValueError, match=r"no cv path drawn in 1000 tries kept within source\.keep_within = 15\.0 m"):
+        env.reset(seed=0)

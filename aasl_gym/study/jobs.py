@@ -8,9 +8,9 @@ from dataclasses import dataclass
 from aasl_gym.config import EnvConfig, to_dict
 from aasl_gym.env import resolve_config
 
-MOTIONS = ("static", "cv", "ca", "ctrv", "mixed")
+MOTIONS = ("static", "cv", "ca", "ctrv", "uturn", "mixed")
 FILTER_CHOICES = ("cv", "ca", "ctrv", "matched")
-MATCHED_FILTER = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv", "mixed": "cv"}
+MATCHED_FILTER = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv", "uturn": "ctrv", "mixed": "cv"}
 
 
 @dataclass(frozen=True)

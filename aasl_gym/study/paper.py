@@ -13,6 +13,10 @@ trials that did not (mean and sample sd), as the paper reports them.
   direct-path filter against the one matched to the world, in both worlds.
 - ``navigation`` (paper: 10 trials per level): sigma_rov from 0 to 0.7 m (velocity sd 0.4 sigma_rov), the
   filter told R_ac only against R_eff, in the Monte Carlo world; optionally with a slow drift on top.
+- ``lake`` (issue 15; the paper's field trial): the nominal filter (direct path, R_ac only) against the
+  compensated one (the world's multipath model, R_eff), each with the circle, square and lawnmower patrols
+  of the surface vessel, on static, straight (cv), arc (ctrv) and U-shaped (uturn) source paths.
+- ``arrays`` (issue 15): the scenario itself; :mod:`aasl_gym.study.array_comparison` adds the fixed arrays.
 """
 
 from __future__ import annotations
@@ -43,6 +47,14 @@ STUDY_SCENARIOS = {
     "navigation": "paper-monte-carlo",
     "model-error": "shallow-water",
     "arrays": "paper-monte-carlo",
+    "lake": "lake",
+}
+LAKE_PATROLS = ("circle", "square", "lawnmower")
+LAKE_MOTIONS = ("static", "cv", "ctrv", "uturn")  # the paper's static, straight, arc and U-shaped paths
+# The lake's two filters: the paper's nominal one and its compensated one.
+LAKE_FILTERS = {
+    "nominal": {"multipath": "none", "compensate_navigation": False},
+    "compensated": {"multipath": "matched", "compensate_navigation": True},
 }
 
 
@@ -54,6 +66,8 @@ class Variant:
     name: str
     labels: dict[str, Any]
     changes: dict[str, Any] = field(default_factory=dict)
+    policy: str = PATROL  # the scripted patrol its trials fly
+    record: bool = False  # keep the paths of its first seed's trials for the trajectory plots
 
 
 @dataclass(frozen=True)
@@ -66,6 +80,7 @@ class Study:
     trials: int
     variants: tuple[Variant, ...]
     changes: dict[str, Any] = field(default_factory=dict)
+    motions: tuple[str, ...] = ()  # the source motions every variant runs (none: the one the command names)
 
     def config(self, variant: Variant | None = None) -> EnvConfig:
         """The config a variant's trials run with (without one: the study's base)."""
@@ -125,34 +140,57 @@ def navigation_variants(levels: tuple[float, ...] = NAVIGATION_LEVELS, drift: fl
     )
 
 
+def lake_variants() -> tuple[Variant, ...]:
+    """Each filter (nominal, compensated) x each patrol of the surface vessel; the compensated filter's
+    first trials are kept for the trajectory plots."""
+    return tuple(
+        Variant(
+            f"{name} filter, {patrol}",
+            {"filter": name, "patrol": patrol},
+            {"filter": fields},
+            policy=patrol,
+            record=name == "compensated",
+        )
+        for name, fields in LAKE_FILTERS.items()
+        for patrol in LAKE_PATROLS
+    )
+
+
 def make_study(
     name: str, trials: int | None = None, grid: int = 6, drift: float = 0.0, changes: dict[str, Any] | None = None
 ) -> Study:
-    """The study ``name`` (``multipath``, ``coefficients``, ``navigation`` or ``arrays``) with ``trials`` seeds per
-    variant (default: the paper's), a ``grid`` x ``grid`` coefficient grid, an optional drift and config
-    ``changes`` (nested plain values) to its scenario, under its variants' own."""
+    """The study ``name`` (``multipath``, ``coefficients``, ``navigation``, ``arrays`` or ``lake``) with
+    ``trials`` seeds per variant (default: the paper's; arrays 100, lake 20), a ``grid`` x ``grid``
+    coefficient grid, an optional drift and config ``changes`` (nested plain values) to its scenario, under
+    its variants' own."""
     changes = changes or {}
     variants = {
         "multipath": lambda: (trials or 100, multipath_variants()),
         "coefficients": lambda: (trials or 10, coefficient_variants(grid)),
         "navigation": lambda: (trials or 10, navigation_variants(drift=drift)),
         "arrays": lambda: (trials or 100, (Variant("arrays", {}),)),  # the scenario itself; the arrays ride along
+        "lake": lambda: (trials or 20, lake_variants()),
     }
     if name not in variants:
         raise ValueError(f"unknown study {name!r}; allowed: {sorted(variants)}")
     count, cells = variants[name]()
-    return Study(name, STUDY_SCENARIOS[name], count, cells, changes)
+    motions = LAKE_MOTIONS if name == "lake" else ()
+    return Study(name, STUDY_SCENARIOS[name], count, cells, changes, motions)
 
 
 def study_jobs(study: Study, motion: str, first_seed: int) -> list[Job]:
-    """One job per variant and seed (seeds ``first_seed`` onward, the same for every variant)."""
+    """One job per motion (the study's, or ``motion``), variant and seed (seeds ``first_seed`` onward, the
+    same for every variant)."""
     jobs = []
-    for variant in study.variants:
-        config = study.config(variant)
-        data = to_dict(config)
-        mode, filter_model = config.measurement.mode, MATCHED_FILTER[motion]
-        for seed in range(first_seed, first_seed + study.trials):
-            jobs.append(Job(PATROL, "lcmap", motion, mode, seed, data, filter_model, variant=variant.name))
+    for source_motion in study.motions or (motion,):
+        for variant in study.variants:
+            config = study.config(variant)
+            data = to_dict(config)
+            mode, filter_model = config.measurement.mode, MATCHED_FILTER[source_motion]
+            for seed in range(first_seed, first_seed + study.trials):
+                record = variant.record and seed == first_seed
+                job = Job(variant.policy, "lcmap", source_motion, mode, seed, data, filter_model, record, variant.name)
+                jobs.append(job)
     return jobs
 
 
@@ -160,7 +198,8 @@ def study_header(study: Study, motion: str) -> dict[str, Any]:
     """What the resume log holds a study to: its scenario's config, its variants and the source's motion."""
     base = to_dict(study.config())
     variants = [variant.changes for variant in study.variants]
-    return {"study": study.name, "scenario": study.scenario, "motion": motion, "base": base, "variants": variants}
+    motion_field = list(study.motions) if study.motions else motion
+    return {"study": study.name, "scenario": study.scenario, "motion": motion_field, "base": base, "variants": variants}
 
 
 def _mean_sd(values: list[float]) -> tuple[float | None, float | None]:
@@ -176,26 +215,34 @@ def converged(row: Row) -> bool:
 
 
 def summarize_variants(study: Study, rows: list[Row]) -> list[Row]:
-    """Per variant, in the study's order: its labels, n, the converged share; RMSE, final and maximum error
-    and the RMSE over the episode's second half, over the converged trials (mean and sd); our success share
-    at 1 m, the median RMSE of all (a trial without an estimate counts as infinite) and the mean RMSE of those
-    with one (the heat maps' and the sweep's measure: diverged trials included; ``no_estimate`` counts the
-    trials left out of it, whose filter never started)."""
+    """Per variant (and per motion, for a study of several), in the study's order: its labels, n, the
+    converged share; RMSE, final and maximum error and the RMSE over the episode's second half, over the
+    converged trials (mean and sd); our success share at 1 m, the median RMSE of all (a trial without an
+    estimate counts as infinite) and the mean RMSE of those with one (the heat maps' and the sweep's
+    measure: diverged trials included; ``no_estimate`` counts the trials left out of it, whose filter
+    never started)."""
     summary = []
-    for variant in study.variants:
-        trials = [row for row in rows if row["variant"] == variant.name]
-        kept = [row for row in trials if converged(row)]
-        entry: Row = {"variant": variant.name, **variant.labels, "n": len(trials)}
-        entry["converged_rate"] = len(kept) / len(trials) if trials else None
-        for metric in ("rmse", "final_error", "max_error", "rmse_second_half"):
-            entry[f"{metric}_mean"], entry[f"{metric}_sd"] = _mean_sd([row[metric] for row in kept])
-        entry["success_rate_1m"] = sum(row["success"]["1.0"] for row in trials) / len(trials) if trials else None
-        median = float(np.median([math.inf if row["rmse"] is None else row["rmse"] for row in trials] or [math.inf]))
-        entry["rmse_median"] = median if math.isfinite(median) else None
-        entry["rmse_all_mean"] = _mean_sd([row["rmse"] for row in trials if row["rmse"] is not None])[0]
-        entry["no_estimate"] = sum(row["rmse"] is None for row in trials)
-        summary.append(entry)
+    for motion in study.motions or (None,):
+        for variant in study.variants:
+            trials = [
+                row for row in rows if row["variant"] == variant.name and (motion is None or row["motion"] == motion)
+            ]
+            entry: Row = {"variant": variant.name, **variant.labels} | ({"motion": motion} if motion else {})
+            summary.append(entry | _trial_statistics(trials))
     return summary
+
+
+def _trial_statistics(trials: list[Row]) -> Row:
+    kept = [row for row in trials if converged(row)]
+    entry: Row = {"n": len(trials), "converged_rate": len(kept) / len(trials) if trials else None}
+    for metric in ("rmse", "final_error", "max_error", "rmse_second_half"):
+        entry[f"{metric}_mean"], entry[f"{metric}_sd"] = _mean_sd([row[metric] for row in kept])
+    entry["success_rate_1m"] = sum(row["success"]["1.0"] for row in trials) / len(trials) if trials else None
+    median = float(np.median([math.inf if row["rmse"] is None else row["rmse"] for row in trials] or [math.inf]))
+    entry["rmse_median"] = median if math.isfinite(median) else None
+    entry["rmse_all_mean"] = _mean_sd([row["rmse"] for row in trials if row["rmse"] is not None])[0]
+    entry["no_estimate"] = sum(row["rmse"] is None for row in trials)
+    return entry
 
 
 def wrapped(values: np.ndarray, period: float) -> np.ndarray:

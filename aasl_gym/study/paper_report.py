@@ -15,12 +15,14 @@ from aasl_gym.scenarios import scenario_config, scenario_description
 from aasl_gym.study.log import Row
 from aasl_gym.study.paper import (
     DIVERGENCE_RMSE,
+    LAKE_MOTIONS,
+    LAKE_PATROLS,
     WORLD_MODELS,
     Study,
     model_error_map,
     model_error_samples,
 )
-from aasl_gym.study.plots import save_png
+from aasl_gym.study.plots import pop_trajectories, save_png, write_trajectory_plots
 
 DPI = 110
 QUANTILES = (50, 90, 99)  # %, of the models' absolute errors
@@ -47,11 +49,15 @@ def _pm(entry: Row, metric: str) -> str:
 
 
 def _setup(study: Study, motion: str, config: EnvConfig, seeds: list[int]) -> list[str]:
+    sources = f"{', '.join(study.motions)} sources" if study.motions else f"a {motion} source"
+    patrols = list(dict.fromkeys(variant.policy for variant in study.variants))
+    patrol = f"{patrols[0]} patrol" if len(patrols) == 1 else "patrol it names (" + ", ".join(patrols) + ")"
     return [
         f"Scenario `{study.scenario}`: {scenario_description(study.scenario)}",
         "",
-        f"Each variant runs the {config.episode.duration:.0f} s helix patrol with the LC-MAP tracker on the same "
-        f"{len(seeds)} seeds ({seeds[0]}-{seeds[-1]}), a {motion} source, the filter's motion model matched to it.",
+        f"Each variant runs the {config.episode.duration:.0f} s {patrol} with the LC-MAP tracker on the same "
+        f"{len(seeds)} seeds ({seeds[0]}-{seeds[-1]}), {sources}, the filter's motion model matched to "
+        + ("each." if study.motions else "it."),
         "",
         DEFINITIONS,
     ]
@@ -167,6 +173,57 @@ def _navigation_figure(summary: list[Row], rows: list[Row]) -> Figure:
     return figure
 
 
+PAPER_LAKE = {"nominal": 1.89, "compensated": 1.37}  # m, the paper's lake RMSE of each filter
+
+
+def _lake_section(summary: list[Row], rows: list[Row]) -> list[str]:
+    ordered = sorted(summary, key=lambda e: (LAKE_PATROLS.index(e["patrol"]), LAKE_MOTIONS.index(e["motion"])))
+    lines = ["## RMSE by patrol and source path", "", *_variant_table(ordered, ["patrol", "motion", "filter"]), ""]
+    lines += [
+        "## All trials: nominal against compensated",
+        "",
+        "| filter | trials | with an estimate | RMSE (m): mean ± sd | median RMSE (m) | success 1 m "
+        "| paper's RMSE (m) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, paper_rmse in PAPER_LAKE.items():
+        trials = [row for row in rows if row["variant"].startswith(f"{name} filter")]
+        rmse = [row["rmse"] for row in trials if row["rmse"] is not None]
+        spread = f"{np.mean(rmse):.2f} ± {np.std(rmse, ddof=1):.2f}" if len(rmse) > 1 else "-"
+        success = np.mean([row["success"]["1.0"] for row in trials]) if trials else float("nan")
+        median = f"{np.median(rmse):.2f}" if rmse else "-"
+        lines.append(
+            f"| {name} | {len(trials)} | {len(rmse)} | {spread} | {median} | {success:.0%} | {paper_rmse:.2f} |"
+        )
+    return lines
+
+
+def _lake_figure(summary: list[Row]) -> Figure:
+    figure = Figure(figsize=(11, 4.2))
+    ax = figure.subplots()
+    cells = list(dict.fromkeys((entry["patrol"], entry["motion"]) for entry in summary))
+    for index, name in enumerate(PAPER_LAKE):
+        medians = [
+            next(e["rmse_median"] for e in summary if (e["patrol"], e["motion"], e["filter"]) == (*cell, name))
+            for cell in cells
+        ]
+        heights = [np.nan if value is None else value for value in medians]
+        ax.bar(
+            np.arange(len(cells)) + 0.4 * index - 0.2,
+            heights,
+            width=0.4,
+            color=f"C{index}",
+            label=f"{name}: median RMSE",
+        )
+        ax.axhline(PAPER_LAKE[name], color=f"C{index}", linestyle=":", label=f"paper, {name}")
+    ax.set_xticks(np.arange(len(cells)), [f"{patrol}\n{motion}" for patrol, motion in cells], fontsize=8)
+    ax.set_ylabel("RMSE (m)")
+    ax.set_yscale("log")
+    ax.grid(alpha=0.3, axis="y", which="both")
+    ax.legend(fontsize=8)
+    return figure
+
+
 def write_study(
     out: Path, command: str, study: Study, motion: str, rows: list[Row], summary: list[Row], plots: bool = True
 ) -> list[Path]:
@@ -177,12 +234,17 @@ def write_study(
         "multipath": lambda: _multipath_section(summary),
         "coefficients": lambda: _coefficient_section(summary),
         "navigation": lambda: _navigation_section(summary),
+        "lake": lambda: _lake_section(summary, rows),
     }
     figures = {
         "coefficients": lambda: _coefficient_figure(summary),
         "navigation": lambda: _navigation_figure(summary, rows),
+        "lake": lambda: _lake_figure(summary),
     }
+    trajectories = pop_trajectories(rows)
     names = [save_png(figures[study.name](), out, f"{study.name}.png", DPI)] if plots and study.name in figures else []
+    if plots and trajectories:
+        names += write_trajectory_plots(out, trajectories, config)
     variants = [{"name": v.name, "labels": v.labels, "changes": v.changes} for v in study.variants]
     results: dict[str, Any] = {"command": command, "study": study.name, "scenario": study.scenario, "motion": motion}
     results |= {"config": to_dict(config), "variants": variants, "trials": rows, "summary": summary}
