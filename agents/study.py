@@ -49,10 +49,13 @@ def run_trial(job: Job) -> Row:
     row["variant"] = job.variant
     errors = np.array([error for _, error in steps])
     row["max_error"] = _finite_or_none(errors.max()) if errors.size else None
-    half = 0.5 * job.config["episode"]["duration"]
-    late = np.array([error for time, error in steps if time >= half])
-    row["rmse_second_half"] = _finite_or_none(metrics.rmse(late))
+    row["rmse_second_half"] = _second_half_rmse(steps, job.config["episode"]["duration"])
     return row
+
+
+def _second_half_rmse(steps: list[tuple[float, float]], duration: float) -> float | None:
+    """RMSE (m) of the (time s, error m) ``steps`` in the second half of an episode of ``duration`` s."""
+    return _finite_or_none(metrics.rmse(np.array([error for time, error in steps if time >= 0.5 * duration])))
 
 
 def run_array_trial(job: Job) -> Row:
@@ -71,10 +74,9 @@ def run_array_trial(job: Job) -> Row:
     env.close()
     row = _episode_row(job, env, info)
     errors = np.array([error for _, error, _ in steps])
-    half = 0.5 * job.config["episode"]["duration"]
     row["tracker"] = {
         "rmse": row["rmse"],
-        "rmse_second_half": _finite_or_none(metrics.rmse(np.array([e for t, e, _ in steps if t >= half]))),
+        "rmse_second_half": _second_half_rmse([(t, e) for t, e, _ in steps], job.config["episode"]["duration"]),
         "median_error": _finite_or_none(np.median(errors)) if errors.size else None,
         "ms_mean": 1e3 * float(np.mean(seconds)),
         "ms_median": 1e3 * float(np.median(seconds)),
