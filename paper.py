@@ -6,6 +6,7 @@
     python paper.py model-error  [--samples 20000] [--out DIR]
     python paper.py arrays       [--trials 100] ...   (fixed arrays against the tracker, issue 15)
     python paper.py lake         [--trials 20] ...    (the field trial: every patrol and source path; issue 15)
+    python paper.py facility     [--trials 20] ...    (the 8-pod facility, AASL-Facility-v0; issue 15)
 
 ``--config FILE`` changes fields of the study's scenario, e.g. a shorter episode; the fields a study varies
 (the reflection model and coefficients, the filter's multipath model, the navigation error and its
@@ -43,7 +44,7 @@ from aasl_gym.study.runner import (
 from agents.study import run_array_trial, run_trial
 
 ROOT = Path(__file__).resolve().parent
-STUDIES = ("multipath", "coefficients", "navigation", "model-error", "arrays", "lake")
+STUDIES = ("multipath", "coefficients", "navigation", "model-error", "arrays", "lake", "facility")
 FIRST_SEED = 800000  # none of the tracker's tuning or held-out seeds (issue 12) lie here
 
 
@@ -55,14 +56,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--trials",
         type=int,
         default=None,
-        help="seeds per variant (default: the paper's: 100, 10, 10; arrays 100, lake 20)",
+        help="seeds per variant (default: the paper's: 100, 10, 10; arrays 100, lake and facility 20)",
     )
     add("--seed", type=int, default=FIRST_SEED, help="first seed")
     add(
         "--motion",
         choices=MOTIONS,
         default="cv",
-        help="the source's motion (the filter's model matches it; lake runs its own four)",
+        help="the source's motion (the filter's model matches it; lake and facility run their own)",
     )
     add("--grid", type=int, default=6, help="coefficients: values of a_surf and of a_bed")
     add(

@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from aasl_gym.facility import loop_radius, pod_hydrophones
+
 SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "uturn", "mixed")
 MEASUREMENT_MODES = ("signal", "geometric")
 SIGNAL_PATHS = ("fast", "hardware")
@@ -516,6 +518,38 @@ class PatrolConfig:
 
 
 @dataclass(frozen=True)
+class FacilityConfig:
+    """A facility of several pods on the bed, one fixed hydrophone atop each, and one patrol robot
+    (``AASL-Facility-v0``, :mod:`aasl_gym.facility`). The pods stand in ``rows`` rows, ``spacing`` apart,
+    centred on ``world.fixed_position`` (whose depth their hydrophones share). The attack begins at a time
+    drawn from ``onset_range``, next to a pod drawn at random; a pod's hydrophone hears it once its SNR
+    (spreading, the multipath sum with reflections on, the world's noise level) reaches ``detection_snr_db``."""
+
+    pods: int = 1  # 1: a single pod, world.fixed_position (the other ids ignore this section)
+    rows: int = 1
+    spacing: float = 30.0  # m between neighbouring pods
+    onset_range: tuple[float, float] = (5.0, 30.0)  # s, when the attack begins
+    detection_snr_db: float = 20.0  # dB
+    loop_margin: float = 10.0  # m: before detection the robot circles this far outside the outermost pods
+
+    def __post_init__(self) -> None:
+        require(
+            isinstance(self.pods, int) and self.pods >= 1,
+            "facility.pods",
+            f"must be an integer >= 1, got {self.pods!r}",
+        )
+        require(
+            isinstance(self.rows, int) and 1 <= self.rows <= self.pods,
+            "facility.rows",
+            f"must be an integer from 1 to facility.pods = {self.pods}, got {self.rows!r}",
+        )
+        _positive(self.spacing, "facility.spacing")
+        _ordered_pair(self.onset_range, "facility.onset_range")
+        require(math.isfinite(self.detection_snr_db), "facility.detection_snr_db", "must be finite")
+        _non_negative(self.loop_margin, "facility.loop_margin")
+
+
+@dataclass(frozen=True)
 class EnvConfig:
     world: WorldConfig = field(default_factory=WorldConfig)
     source: SourceConfig = field(default_factory=SourceConfig)
@@ -528,6 +562,7 @@ class EnvConfig:
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
     patrol: PatrolConfig = field(default_factory=PatrolConfig)
     fault: FaultConfig = field(default_factory=FaultConfig)
+    facility: FacilityConfig = field(default_factory=FacilityConfig)
 
     def __post_init__(self) -> None:
         for section in dataclasses.fields(self):
@@ -551,6 +586,7 @@ class EnvConfig:
         )
         self._check_initial_centre()
         self._check_source_depth()
+        self._check_facility()
         require(
             2 * self.source.boundary_margin < depth, "source.boundary_margin", "leaves no water column for the source"
         )
@@ -582,6 +618,26 @@ class EnvConfig:
                 f"{depth} m must lie source.boundary_margin = {margin} m below the surface and above the bed "
                 f"(world.water_depth = {water} m)",
             )
+
+    def _check_facility(self) -> None:
+        """Every pod's source ball lies in the world's region, and the robot may fly the loop around the pods."""
+        if self.facility.pods == 1:
+            return
+        hydrophones = pod_hydrophones(self.facility, self.world.fixed_position)
+        farthest = float(np.max(np.hypot(hydrophones[:, 0], hydrophones[:, 1])))
+        require(
+            farthest + self.source.initial_radius <= self.world.region_radius,
+            "facility.spacing",
+            f"puts a pod {farthest:.1f} m from the origin: with source.initial_radius = {self.source.initial_radius} "
+            f"m its sources reach beyond world.region_radius = {self.world.region_radius} m",
+        )
+        loop = loop_radius(self.facility, hydrophones)
+        require(
+            loop <= self.receiver.region_radius,
+            "facility.loop_margin",
+            f"the patrol loop ({loop:.1f} m from the facility's centre) leaves receiver.region_radius = "
+            f"{self.receiver.region_radius} m",
+        )
 
     def _check_initial_centre(self) -> None:
         """The ball the source starts in must reach the water it may start in - the region less

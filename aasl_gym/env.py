@@ -19,6 +19,7 @@ from aasl_gym.fisher import InformationTracker, measurement_jacobian
 from aasl_gym.measurement_models import direct_measurement, navigation_covariance
 from aasl_gym.motion import (
     NavigationError,
+    SourceState,
     advance_source,
     motion_region,
     move_receiver,
@@ -246,7 +247,7 @@ class AASLEnv(gym.Env):
         super().reset(seed=seed)
         cfg = self.config
         rng = self.np_random
-        self.source = sample_source(rng, cfg.source.motion, cfg.source, cfg.world, cfg.episode.duration)
+        self.source = self._sample_source(rng)
         self.receiver_position = np.asarray(cfg.receiver.start_position, dtype=float).copy()
         if self.surface_depth is not None:
             self.receiver_position[2] = -self.surface_depth
@@ -277,6 +278,11 @@ class AASLEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return self._observation(), {"time": 0.0, "source_motion": self.source.kind}
+
+    def _sample_source(self, rng: np.random.Generator) -> SourceState:
+        """The episode's source, drawn from the config's motion and start region."""
+        cfg = self.config
+        return sample_source(rng, cfg.source.motion, cfg.source, cfg.world, cfg.episode.duration)
 
     def _command(self, action: np.ndarray) -> np.ndarray:
         command = action * self.config.receiver.max_speed
@@ -335,10 +341,13 @@ class AASLEnv(gym.Env):
             receiver.keep_out_radius,
             self.surface_depth,
         )
-        self.source = advance_source(self.source, self.dt, self.motion_region)
+        self._advance_source()
         self._steps += 1
         self._time = self._steps * self.dt
         return hit
+
+    def _advance_source(self) -> None:
+        self.source = advance_source(self.source, self.dt, self.motion_region)
 
     def _measure(self) -> np.ndarray:
         """The sensor's [RD, RRD] from the true geometry (NaN for a lost frame); then navigation reports the
@@ -502,7 +511,11 @@ class AASLEnv(gym.Env):
         if self._renderer is None:
             self._renderer = Renderer(self.config, human=self.render_mode == "human")
         covariance = self.tracker.position_covariance if self.tracker.initialized else None
-        return self._renderer.draw(self.trajectory, self.fixed, covariance, self._time)
+        return self._renderer.draw(self.trajectory, self._drawn_hydrophones(), covariance, self._time)
+
+    def _drawn_hydrophones(self) -> np.ndarray:
+        """The fixed hydrophones a rendering shows: (3,) for one pod."""
+        return self.fixed
 
     def close(self):
         if self._renderer is not None:

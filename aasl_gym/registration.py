@@ -16,6 +16,9 @@ ENV_IDS: dict[str, str | None] = {
     "AASL-Square-v0": "square",
     "AASL-Greedy-v0": "greedy",
 }
+# The multi-pod facility (aasl_gym.facility_env): its own patrol (the loop, then the spiral about a pod).
+FACILITY_ID = "AASL-Facility-v0"
+ALL_IDS = (*ENV_IDS, FACILITY_ID)
 
 
 def register_envs() -> None:
@@ -23,3 +26,5 @@ def register_envs() -> None:
         if env_id not in registry:
             # The env truncates itself at episode.duration, which a config may change.
             register(id=env_id, entry_point=ENTRY_POINT, kwargs={"patrol": patrol})
+    if FACILITY_ID not in registry:
+        register(id=FACILITY_ID, entry_point="aasl_gym.facility_env:FacilityEnv")

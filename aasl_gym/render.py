@@ -37,7 +37,8 @@ def draw_episode(
     config: EnvConfig,
     title: str | None = None,
 ) -> None:
-    """Top view (x-y) and depth view (x-z) of the robot, source and estimate paths."""
+    """Top view (x-y) and depth view (x-z) of the robot, source and estimate paths; ``fixed`` is the pod's
+    hydrophone (3,) or a facility's (N, 3)."""
     figure.clear()
     top, side = figure.subplots(1, 2)
     limit = max(
@@ -49,7 +50,8 @@ def draw_episode(
             if len(points):
                 ax.plot(points[:, i], points[:, j], color=COLOURS[name], lw=1, label=name)
                 ax.plot(points[-1, i], points[-1, j], "o", color=COLOURS[name], ms=4)
-        ax.plot(fixed[i], fixed[j], "s", color=COLOURS["fixed"], ms=6, label="pod")
+        pods = np.atleast_2d(fixed)
+        ax.plot(pods[:, i], pods[:, j], "s", color=COLOURS["fixed"], ms=6, label="pod" if len(pods) == 1 else "pods")
         estimate = trajectory.get("estimate") or []
         if covariance is not None and len(estimate) and np.all(np.isfinite(covariance)):
             ax.add_patch(

@@ -12,12 +12,14 @@ import numpy as np
 
 from aasl_gym import metrics
 from aasl_gym.env import AASLEnv
+from aasl_gym.facility_env import FacilityEnv
 from aasl_gym.registration import ENV_IDS
 from aasl_gym.study.array_comparison import array_row, time_calls
-from aasl_gym.study.jobs import Job
+from aasl_gym.study.jobs import FACILITY_PATROL, Job
 from aasl_gym.study.log import Row
 from agents.policies import make_policy
 from agents.rollout import play_episode
+from agents.scripted import ZeroPolicy
 
 
 @lru_cache(maxsize=8)
@@ -91,17 +93,19 @@ def run_array_trial(job: Job) -> Row:
 
 def _episode_env(job: Job) -> tuple[AASLEnv, Any]:
     """The job's env and the policy that flies it. Scripted policies fly ``AASL-v0``; a trained model flies
-    the env it was trained on (a residual model needs its patrol's command)."""
+    the env it was trained on (a residual model needs its patrol's command); ``facility`` is the facility's
+    own patrol (a zero residual on ``AASL-Facility-v0``)."""
+    overrides = {
+        "source_motion": job.motion,
+        "initializer": job.initializer,
+        "measurement": job.measurement,
+        "filter_model": job.filter_model,
+    }
+    if job.policy == FACILITY_PATROL:
+        return FacilityEnv(job.config, scenario=None, **overrides), ZeroPolicy()
     policy = trained_model(job.policy) if ":" in job.policy else None
     patrol = ENV_IDS[policy.env_id] if policy is not None else None
-    env = AASLEnv(
-        job.config,
-        source_motion=job.motion,
-        initializer=job.initializer,
-        measurement=job.measurement,
-        filter_model=job.filter_model,
-        patrol=patrol,
-    )
+    env = AASLEnv(job.config, patrol=patrol, **overrides)
     if policy is None:
         policy = make_policy(job.policy, env.config, seed=job.seed)
     return env, policy
@@ -137,6 +141,9 @@ def _episode_row(job: Job, env: AASLEnv, info: dict) -> Row:
         "time_to_first_estimate": _finite_or_none(info["time_to_first_estimate"]),
         "reinitializations": int(info["reinitializations"]),
     }
+    if "detection_time" in info:  # the facility's
+        row |= {key: info[key] for key in ("pod", "source_pod")}
+        row["detection_time"] = _finite_or_none(info["detection_time"])
     if job.record:
         row["trajectory"] = {name: np.asarray(points).tolist() for name, points in env.trajectory.items()}
     return row

@@ -201,3 +201,15 @@ def test_a_tiny_lake_study_runs_every_patrol_and_path_with_both_filters(tmp_path
     assert "| nominal | 12 | " in report and report.count("| 1.37 |") == 1
     config = make_study("lake").config(lake_variants()[0])
     assert config.filter.multipath == "none" and not config.filter.compensate_navigation
+
+
+def test_a_tiny_facility_study_pairs_each_trial_with_a_pod(tmp_path):
+    short = tmp_path / "short.yaml"
+    short.write_text("episode:\n  duration: 8.0\nfacility:\n  onset_range: [1.0, 3.0]\n")
+    assert paper.main(["facility", "--trials", "1", "--config", str(short), "--no-plots", "--out", str(tmp_path)]) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert [row["motion"] for row in results["trials"]] == ["static", "cv", "ctrv"]
+    for row in results["trials"]:
+        assert 1.0 <= row["detection_time"] <= 3.2 and 0 <= row["pod"] < 8 and 0 <= row["source_pod"] < 8
+    report = (tmp_path / "report.md").read_text()
+    assert "| source | trials | heard | paired with the attacked pod | detection (s): median |" in report

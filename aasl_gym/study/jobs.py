@@ -10,6 +10,7 @@ from aasl_gym.env import resolve_config
 
 MOTIONS = ("static", "cv", "ca", "ctrv", "uturn", "mixed")
 FILTER_CHOICES = ("cv", "ca", "ctrv", "matched")
+FACILITY_PATROL = "facility"  # a job's policy that flies AASL-Facility-v0's own patrol (a zero residual)
 MATCHED_FILTER = {"static": "cv", "cv": "cv", "ca": "ca", "ctrv": "ctrv", "uturn": "ctrv", "mixed": "cv"}
 
 

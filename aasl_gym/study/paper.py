@@ -17,6 +17,8 @@ trials that did not (mean and sample sd), as the paper reports them.
   compensated one (the world's multipath model, R_eff), each with the circle, square and lawnmower patrols
   of the surface vessel, on static, straight (cv), arc (ctrv) and U-shaped (uturn) source paths.
 - ``arrays`` (issue 15): the scenario itself; :mod:`aasl_gym.study.array_comparison` adds the fixed arrays.
+- ``facility`` (issue 15; the paper's 8-pod run): ``AASL-Facility-v0``'s own patrol, the tracker paired with
+  the pod that hears the source loudest, on static, cv and ctrv sources.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from aasl_gym.measurement_models import Propagation, multipath_measurement
 from aasl_gym.motion import sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, helix_reference
 from aasl_gym.scenarios import scenario_config
-from aasl_gym.study.jobs import MATCHED_FILTER, Job
+from aasl_gym.study.jobs import FACILITY_PATROL, MATCHED_FILTER, Job
 from aasl_gym.study.log import Row
 
 DIVERGENCE_RMSE = 30.0  # m: a trial whose RMSE exceeds it diverged (the paper's definition)
@@ -48,7 +50,9 @@ STUDY_SCENARIOS = {
     "model-error": "shallow-water",
     "arrays": "paper-monte-carlo",
     "lake": "lake",
+    "facility": "facility",
 }
+FACILITY_MOTIONS = ("static", "cv", "ctrv")
 LAKE_PATROLS = ("circle", "square", "lawnmower")
 LAKE_MOTIONS = ("static", "cv", "ctrv", "uturn")  # the paper's static, straight, arc and U-shaped paths
 # The lake's two filters: the paper's nominal one and its compensated one.
@@ -159,8 +163,8 @@ def lake_variants() -> tuple[Variant, ...]:
 def make_study(
     name: str, trials: int | None = None, grid: int = 6, drift: float = 0.0, changes: dict[str, Any] | None = None
 ) -> Study:
-    """The study ``name`` (``multipath``, ``coefficients``, ``navigation``, ``arrays`` or ``lake``) with
-    ``trials`` seeds per variant (default: the paper's; arrays 100, lake 20), a ``grid`` x ``grid``
+    """The study ``name`` (one of :data:`STUDY_SCENARIOS` but ``model-error``) with ``trials`` seeds per
+    variant (default: the paper's; arrays 100, lake and facility 20), a ``grid`` x ``grid``
     coefficient grid, an optional drift and config ``changes`` (nested plain values) to its scenario, under
     its variants' own."""
     changes = changes or {}
@@ -170,11 +174,15 @@ def make_study(
         "navigation": lambda: (trials or 10, navigation_variants(drift=drift)),
         "arrays": lambda: (trials or 100, (Variant("arrays", {}),)),  # the scenario itself; the arrays ride along
         "lake": lambda: (trials or 20, lake_variants()),
+        "facility": lambda: (
+            trials or 20,
+            (Variant("loudest pod", {"pair": "loudest pod"}, {}, FACILITY_PATROL, True),),
+        ),
     }
     if name not in variants:
         raise ValueError(f"unknown study {name!r}; allowed: {sorted(variants)}")
     count, cells = variants[name]()
-    motions = LAKE_MOTIONS if name == "lake" else ()
+    motions = {"lake": LAKE_MOTIONS, "facility": FACILITY_MOTIONS}.get(name, ())
     return Study(name, STUDY_SCENARIOS[name], count, cells, changes, motions)
 
 

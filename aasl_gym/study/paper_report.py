@@ -224,6 +224,37 @@ def _lake_figure(summary: list[Row]) -> Figure:
     return figure
 
 
+PAPER_FACILITY_RMSE = 1.65  # m, the paper's 8-pod run
+
+
+def _facility_section(rows: list[Row]) -> list[str]:
+    lines = [
+        "## The facility: detection, hand-over and tracking",
+        "",
+        "| source | trials | heard | paired with the attacked pod | detection (s): median | RMSE (m): mean ± sd "
+        "| median RMSE (m) | success 1 m | time to 1 m after detection (s): median | paper's RMSE (m) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for motion in dict.fromkeys(row["motion"] for row in rows):
+        trials = [row for row in rows if row["motion"] == motion]
+        heard = [row for row in trials if row["detection_time"] is not None]
+        same_pod = np.mean([row["pod"] == row["source_pod"] for row in heard]) if heard else float("nan")
+        detection = _fmt(float(np.median([row["detection_time"] for row in heard])), 1) if heard else "-"
+        rmse = [row["rmse"] for row in trials if row["rmse"] is not None]
+        spread = f"{np.mean(rmse):.2f} ± {np.std(rmse, ddof=1):.2f}" if len(rmse) > 1 else "-"
+        median = _fmt(float(np.median(rmse))) if rmse else "-"
+        success = np.mean([row["success"]["1.0"] for row in trials])
+        delays = [
+            row["convergence_time"] - row["detection_time"] for row in heard if row["convergence_time"] is not None
+        ]
+        delay = _fmt(float(np.median(delays)), 1) if delays else "-"
+        lines.append(
+            f"| {motion} | {len(trials)} | {len(heard) / len(trials):.0%} | {same_pod:.0%} | {detection} | {spread} "
+            f"| {median} | {success:.0%} | {delay} | {PAPER_FACILITY_RMSE:.2f} |"
+        )
+    return lines
+
+
 def write_study(
     out: Path, command: str, study: Study, motion: str, rows: list[Row], summary: list[Row], plots: bool = True
 ) -> list[Path]:
@@ -235,6 +266,7 @@ def write_study(
         "coefficients": lambda: _coefficient_section(summary),
         "navigation": lambda: _navigation_section(summary),
         "lake": lambda: _lake_section(summary, rows),
+        "facility": lambda: _facility_section(rows),
     }
     figures = {
         "coefficients": lambda: _coefficient_figure(summary),

@@ -9,6 +9,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from aasl_gym.config import EnvConfig
+from aasl_gym.facility import pod_hydrophones
 from aasl_gym.io import atomic_write
 from aasl_gym.metrics import SUCCESS_THRESHOLDS
 from aasl_gym.render import draw_episode
@@ -104,7 +105,7 @@ def write_trajectory_plots(out: Path, trajectories: list[Trajectory], config: En
     """One figure per motion: for each recorded episode (policy, seed) the top and depth views of the
     robot's path, the source's and the estimate's (:func:`aasl_gym.render.draw_episode`)."""
     names = []
-    fixed = np.asarray(config.world.fixed_position, dtype=float)
+    fixed = pod_hydrophones(config.facility, config.world.fixed_position)  # one row but in a facility
     for motion in sorted({t[1] for t in trajectories}, key=_motion_order):
         episodes = sorted((t for t in trajectories if t[1] == motion), key=lambda t: (t[0], t[2]))
         figure = Figure(figsize=(10, 4.2 * len(episodes)))

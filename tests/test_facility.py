@@ -1,0 +1,77 @@
+"""The multi-pod facility (issue 15): its layout against closed-form geometry, the attack's onset and
+detection, the hand-over of the pair and the tracker to the loudest pod."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import aasl_gym  # noqa: F401  (registers AASL-Facility-v0)
+from aasl_gym.config import ConfigError, FacilityConfig
+from aasl_gym.facility import loop_radius, pod_hydrophones
+from aasl_gym.facility_env import hydrophone_snr_db
+
+QUICK = {"episode": {"duration": 12.0}, "facility": {"onset_range": [1.0, 3.0]}}
+
+
+def test_the_pods_stand_on_their_grid_about_the_centre():
+    facility = FacilityConfig(pods=8, rows=2, spacing=30.0)
+    hydrophones = pod_hydrophones(facility, (1.0, -2.0, -59.06))
+    assert hydrophones.shape == (8, 3)
+    np.testing.assert_allclose(hydrophones.mean(axis=0), [1.0, -2.0, -59.06])
+    gaps = np.linalg.norm(hydrophones[:, None] - hydrophones[None], axis=2) + np.eye(8) * 1e9
+    np.testing.assert_allclose(gaps.min(axis=1), 30.0)  # every pod has a neighbour 30 m away, none nearer
+    assert loop_radius(facility, hydrophones) == pytest.approx(np.hypot(45.0, 15.0) + facility.loop_margin)
+    odd = pod_hydrophones(FacilityConfig(pods=5, rows=2, spacing=10.0), (0.0, 0.0, -1.0))
+    assert sorted(odd[:, 1].tolist()) == [-5.0, -5.0, -5.0, 5.0, 5.0]  # the last row holds what is left
+    np.testing.assert_allclose(odd[odd[:, 1] > 0, 0], [-5.0, 5.0])  # centred
+
+
+def test_without_reflections_the_snr_is_the_spreading_law():
+    env = gym.make("AASL-Facility-v0", reflections=False).unwrapped
+    config, source = env.config, np.array([10.0, 3.0, -50.0])
+    expected = config.source.source_level_db - 20 * np.log10(np.linalg.norm(env.hydrophones - source, axis=1))
+    np.testing.assert_allclose(
+        hydrophone_snr_db(config, source, env.hydrophones), expected - config.world.noise_level_db
+    )
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_the_attack_is_silent_until_its_onset_then_the_loudest_pod_takes_the_pair(seed):
+    env = gym.make("AASL-Facility-v0", config=QUICK, source_motion="cv", reflections=False, multipath="none").unwrapped
+    _, info = env.reset(seed=seed)
+    start, onset = env.source.position.copy(), env.onset
+    assert 1.0 <= onset <= 3.0 and info["pod"] == -1 and not info["detected"]
+    assert np.linalg.norm(start - env.hydrophones[info["source_pod"]]) <= env.config.source.initial_radius
+    while True:
+        _, _, _, _, info = env.step(np.zeros(3))
+        if info["time"] < onset - 1e-9:
+            np.testing.assert_array_equal(info["source_position"], start)  # still, and no pair yet
+            assert not info["detected"] and np.all(np.isnan(info["measurement"])) and not info["initialized"]
+            continue
+        break
+    # Without reflections the loudest pod is the nearest; the pair, the truth measurement and the tracker follow it.
+    nearest = int(np.argmin(np.linalg.norm(env.hydrophones - info["source_position"], axis=1)))
+    assert info["detected"] and info["pod"] == nearest and info["detection_time"] == info["time"]
+    np.testing.assert_array_equal(info["fixed_position"], env.hydrophones[nearest])
+    np.testing.assert_array_equal(env.tracker.fixed, env.hydrophones[nearest])
+    assert np.all(np.isfinite(info["measurement"]))
+    for _ in range(20):
+        _, _, _, _, info = env.step(np.zeros(3))
+    assert info["initialized"] and info["pod"] == nearest  # the 2 s burst: the tracker started on that pair
+
+
+def test_a_reset_unpairs_and_replays_the_same_episode():
+    env = gym.make("AASL-Facility-v0", config=QUICK).unwrapped
+    runs = []
+    for _ in range(2):
+        env.reset(seed=5)
+        infos = [env.step(np.zeros(3))[4] for _ in range(30)]
+        runs.append([(i["pod"], i["position_error"], i["receiver_position"].tolist()) for i in infos])
+    assert runs[0] == runs[1] and runs[0][-1][0] >= 0
+
+
+def test_a_layout_beyond_the_region_is_named():
+    with pytest.raises(ConfigError, match=r"facility\.spacing: puts a pod .* beyond world\.region_radius = 80\.0 m"):
+        gym.make("AASL-Facility-v0", config={"facility": {"spacing": 60.0}})
+    with pytest.raises(ConfigError, match=r"facility\.rows: must be an integer from 1 to facility\.pods = 8"):
+        gym.make("AASL-Facility-v0", config={"facility": {"rows": 9}})
