@@ -79,7 +79,8 @@ def sdp(receivers, range_differences, solver: str = "CLARABEL") -> np.ndarray:
 
 class SdpLocator:
     """The semidefinite relaxation of Lui, So and Chan (2009) for one fixed array ``receivers`` (M, 3; m,
-    M >= 4), compiled once; call it with a snapshot's M - 1 range differences (m) for a position (3,)."""
+    M >= 4), compiled once; call it with a snapshot's M - 1 range differences (m) for a position (3,). A
+    solve that fails or finds nothing raises RuntimeError."""
 
     def __init__(self, receivers, solver: str = "CLARABEL"):
         try:
@@ -87,7 +88,7 @@ class SdpLocator:
         except ImportError:
             raise ImportError("sdp needs cvxpy: pip install -e '.[arrays]'") from None
         self.reference, offsets = _offsets(receivers, minimum=4)
-        self.solver = solver
+        self.solver, self._solver_error = solver, cp.error.SolverError
         self.scale = float(np.max(np.linalg.norm(offsets, axis=1)))  # in apertures the lifted entries stay moderate
         self.range_differences = cp.Parameter(len(offsets))
         anchors = np.vstack([np.zeros(3), offsets]) / self.scale  # the reference at the origin
@@ -96,7 +97,10 @@ class SdpLocator:
     def __call__(self, range_differences) -> np.ndarray:
         rd = _differences(range_differences, self.range_differences.shape[0])
         self.range_differences.value = rd / self.scale
-        self.problem.solve(solver=self.solver, **TIGHT.get(self.solver, {}))
+        try:
+            self.problem.solve(solver=self.solver, **TIGHT.get(self.solver, {}))
+        except self._solver_error as exc:  # e.g. Clarabel stalling at these tolerances
+            raise RuntimeError(f"the semidefinite program failed (solver {self.solver}): {exc}") from exc
         if self.position.value is None:
             raise RuntimeError(f"the semidefinite program found no solution (solver {self.solver})")
         return self.reference + self.scale * np.asarray(self.position.value).ravel()

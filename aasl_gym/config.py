@@ -153,6 +153,11 @@ class SourceConfig:
         _ordered_pair(self.acceleration_range, "source.acceleration_range")
         _ordered_pair(self.turn_rate_range, "source.turn_rate_range")
         _ordered_pair(self.uturn_start_range, "source.uturn_start_range")
+        require(
+            self.motion != "uturn" or self.turn_rate_range[0] > 0,
+            "source.turn_rate_range",
+            f"a uturn needs turn rates above 0 (its half-turn takes pi / rate), got {list(self.turn_rate_range)}",
+        )
         if self.depth is not None:
             _positive(self.depth, "source.depth")
         if self.keep_within is not None:
@@ -543,10 +548,16 @@ class FacilityConfig:
             "facility.rows",
             f"must be an integer from 1 to facility.pods = {self.pods}, got {self.rows!r}",
         )
+        columns = math.ceil(self.pods / self.rows)
+        require(
+            (self.rows - 1) * columns < self.pods,
+            "facility.rows",
+            f"{self.rows} rows of {columns} leave the last row empty for {self.pods} pods: use fewer rows",
+        )
         _positive(self.spacing, "facility.spacing")
         _ordered_pair(self.onset_range, "facility.onset_range")
         require(math.isfinite(self.detection_snr_db), "facility.detection_snr_db", "must be finite")
-        _non_negative(self.loop_margin, "facility.loop_margin")
+        _positive(self.loop_margin, "facility.loop_margin")
 
 
 @dataclass(frozen=True)
@@ -631,12 +642,26 @@ class EnvConfig:
             f"puts a pod {farthest:.1f} m from the origin: with source.initial_radius = {self.source.initial_radius} "
             f"m its sources reach beyond world.region_radius = {self.world.region_radius} m",
         )
-        loop = loop_radius(self.facility, hydrophones)
+        reach = float(np.hypot(*hydrophones[:, :2].mean(axis=0))) + loop_radius(self.facility, hydrophones)
         require(
-            loop <= self.receiver.region_radius,
+            reach <= self.receiver.region_radius,
             "facility.loop_margin",
-            f"the patrol loop ({loop:.1f} m from the facility's centre) leaves receiver.region_radius = "
+            f"the patrol loop reaches {reach:.1f} m from the origin, beyond receiver.region_radius = "
             f"{self.receiver.region_radius} m",
+        )
+        # The robot is kept out of the paired pod's sphere only: its patrols must pass over the others.
+        deepest = max(self.patrol.depth_max, self.patrol.spiral_depth)
+        clearance = -float(hydrophones[0, 2]) - deepest
+        require(
+            clearance >= self.receiver.keep_out_radius,
+            "patrol.depth_max",
+            f"the patrols reach {deepest} m, {clearance:.2f} m above the pods' hydrophones: keep at least "
+            f"receiver.keep_out_radius = {self.receiver.keep_out_radius} m above them",
+        )
+        require(
+            self.facility.onset_range[1] < self.episode.duration,
+            "facility.onset_range",
+            f"the attack may begin after the episode ends (episode.duration = {self.episode.duration} s)",
         )
 
     def _check_initial_centre(self) -> None:

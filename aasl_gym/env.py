@@ -157,8 +157,10 @@ class AASLEnv(gym.Env):
     ## Starting State
     The robot starts at ``receiver.start_position``. The source starts uniformly within
     ``source.initial_radius`` (20 m) of ``source.initial_centre`` (the origin) inside the water column and follows
-    ``source.motion`` (static, cv, ca, ctrv or mixed) with parameters drawn from the seed. The filter
-    starts after ``initializer.burst_duration`` seconds of measurements.
+    ``source.motion`` (static, cv, ca, ctrv, uturn or mixed) with parameters drawn from the seed (held at
+    ``source.depth`` if set, its path kept within ``source.keep_within`` if set). The filter starts after
+    ``initializer.burst_duration`` seconds of measurements. (``AASL-Facility-v0`` differs:
+    :mod:`aasl_gym.facility_env`.)
 
     ## Episode End
     * Termination: only if ``episode.terminate_on_convergence`` is true, when the position error
@@ -188,7 +190,7 @@ class AASLEnv(gym.Env):
     ``AASLEnv(config=None, patrol=None, render_mode=None, scenario=None, source_motion=None,
     measurement=None, initializer=None, reflections=None, multipath=None, filter_model=None)``.
     ``scenario`` names a world of the reference paper's studies (``aasl_gym.scenarios``: ``default``,
-    ``paper-monte-carlo``, ``shallow-water``, ``submerged-pod``). ``config`` is an
+    ``paper-monte-carlo``, ``shallow-water``, ``submerged-pod``, ``lake``, ``facility``). ``config`` is an
     :class:`~aasl_gym.config.EnvConfig`, a nested dict or the path of a YAML file (with a scenario, a dict
     or file of the fields to change); the other keywords override one field each, over both, and are
     validated with errors that name them. ``render_mode`` is

@@ -8,7 +8,9 @@ facility and the tracker has no pair to measure with. On detection the robot hea
 the source loudest and flies the spiral about it; the tracker pairs the mobile hydrophone with that pod's,
 as the reference paper does, with its prior about that pod. The action is a residual on that scripted
 command, as in the other patrol ids, and the observation, reward and metrics are theirs (the metrics count
-from the tracker's estimate, so from after detection).
+from the tracker's estimate, so from after detection). The observation does not say which pod is paired or
+whether the attack was heard; a policy sees it through the estimate once the tracker runs. The robot is kept
+out of the paired pod's sphere only; the config requires the patrols to pass above every pod.
 
 Extra ``info`` keys: ``detected`` (bool), ``pod`` (the paired pod's index, -1 before detection),
 ``source_pod`` (the pod the attack began next to) and ``detection_time`` (s, inf before); ``fixed_position``

@@ -3,8 +3,10 @@
 Source motions (SPEC section 5): static, constant velocity (CV), constant acceleration (CA, speed capped
 at ``max_speed``) and constant turn rate and velocity (CTRV, a horizontal coordinated turn); and the lake
 trial's U-turn (``uturn``: straight, then a horizontal half-turn at a constant rate, then straight back
-along a parallel line ``2 |v| / |omega|`` to the side). A source with ``source.depth`` set is held at that
-depth (hung from a vessel): it starts there and moves horizontally. Each follows
+along a parallel line ``2 |v_h| / |omega|`` to the side, v_h the horizontal velocity). A source with
+``source.depth`` set is held at that depth (hung from a vessel): it starts where a free one would in plan
+view (so not uniformly over the disc: the ball's projection is densest at its centre) and moves
+horizontally. A path is held to ``source.keep_within`` at samples :data:`PATH_CHECK_STEP` apart. Each follows
 its model exactly, except that surface and bed (less a margin) reflect it specularly. A fast source can
 therefore leave the surveillance region within an episode (1.5 m/s for 120 s is 180 m); with
 ``source.confined`` it reflects at the region's edge too - a loitering attacker, but no longer the

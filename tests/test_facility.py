@@ -75,3 +75,9 @@ def test_a_layout_beyond_the_region_is_named():
         gym.make("AASL-Facility-v0", config={"facility": {"spacing": 60.0}})
     with pytest.raises(ConfigError, match=r"facility\.rows: must be an integer from 1 to facility\.pods = 8"):
         gym.make("AASL-Facility-v0", config={"facility": {"rows": 9}})
+    with pytest.raises(ConfigError, match=r"facility\.rows: 4 rows of 2 leave the last row empty for 5 pods"):
+        gym.make("AASL-Facility-v0", config={"facility": {"rows": 4, "pods": 5}})
+    with pytest.raises(ConfigError, match=r"facility\.onset_range: the attack may begin after the episode ends"):
+        gym.make("AASL-Facility-v0", config={"facility": {"onset_range": [5.0, 200.0]}})
+    with pytest.raises(ConfigError, match=r"patrol\.depth_max: the patrols reach 57\.0 m, 2\.06 m above the pods"):
+        gym.make("AASL-Facility-v0", config={"patrol": {"depth_max": 57.0}})

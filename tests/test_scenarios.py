@@ -177,7 +177,7 @@ def test_the_lake_holds_its_source_at_depth_within_15_m_of_the_dock():
         assert env.source.position[2] == -0.6 and env.receiver_position[2] == -1.19
         for _ in range(env.max_steps):
             env._move(np.zeros(3))  # the truth motions alone: no need to run the tracker here
-            assert np.hypot(*env.source.position[:2]) <= 15.0 + 1e-9
+            assert np.hypot(*env.source.position[:2]) <= 15.0 + 1e-3  # held to it at 0.5 s samples
             assert env.source.position[2] == -0.6
             assert env.receiver_position[2] == -1.19  # a surface vessel, kept out of the dock's 1 m sphere
             assert np.linalg.norm(env.receiver_position - env.fixed) >= 1.0 - 1e-9

@@ -114,8 +114,8 @@ def array_row(sources: np.ndarray, centre: np.ndarray, wavelength: float, sd: fl
             "rmse": _rmse(errors),
             "median_error": float(np.nanmedian(errors)) if np.isfinite(errors).any() else None,
             "failed": int(np.sum(~np.isfinite(errors))),
-            "ms_mean": 1e3 * float(np.mean(seconds)),
-            "ms_median": 1e3 * float(np.median(seconds)),
+            "ms_mean": 1e3 * float(np.mean(seconds)) if len(seconds) else None,  # no snapshot: no estimate to
+            "ms_median": 1e3 * float(np.median(seconds)) if len(seconds) else None,  # compare it with
             "bound_rmse": _bound_rmse(receivers, sources, sd),
             "sweep_rmse": sweep,
         }
@@ -141,6 +141,11 @@ def _mean_sd(values: list[float]) -> tuple[float | None, float | None]:
     if not values:
         return None, None
     return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
+
+
+def _mean(values: list[float | None]) -> float | None:
+    known = [value for value in values if value is not None]
+    return float(np.mean(known)) if known else None
 
 
 def _median(values: list[float | None]) -> float | None:
@@ -169,8 +174,8 @@ def summarize(rows: list[Row], pods: int = 8) -> list[Row]:
                 "median_error": _median([entry["median_error"] for entry in entries]),
                 "bound_rmse": _median([entry.get("bound_rmse") for entry in entries]),
                 "failed": int(sum(entry.get("failed", 0) for entry in entries)),
-                "ms_mean": float(np.mean([entry["ms_mean"] for entry in entries])),
-                "ms_median": float(np.median([entry["ms_median"] for entry in entries])),
+                "ms_mean": _mean([entry["ms_mean"] for entry in entries]),
+                "ms_median": _median([entry["ms_median"] for entry in entries]),
                 "trials": len(entries),
             }
         )

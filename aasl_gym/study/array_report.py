@@ -46,7 +46,7 @@ def _comparison_table(summary: list[Row]) -> list[str]:
             f"| {LABELS[name]} | {entry['receivers_per_pod']} | {entry['receivers_total']} | {ESTIMATES[name]} "
             f"| {_fmt(entry['rmse_mean'])} ± {_fmt(entry['rmse_sd'])} | {_fmt(entry['rmse_median'])} "
             f"| {_fmt(entry['median_error'])} | {_fmt(entry['bound_rmse'])} "
-            f"| {entry['ms_mean']:.3f} / {entry['ms_median']:.3f} "
+            f"| {_fmt(entry['ms_mean'], 3)} / {_fmt(entry['ms_median'], 3)} "
             f"| {paper_rmse:.2f}, {paper_ms:.2f} |"
         )
     return lines
