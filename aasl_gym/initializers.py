@@ -118,7 +118,9 @@ def fibonacci_directions(count: int) -> np.ndarray:
 
 
 def feasible_offsets(first_rd: float, baseline: float | np.floating, wavelength: float | None) -> np.ndarray:
-    """Whole-period biases b_p = k * wavelength with |first_rd - b_p| <= baseline (m)."""
+    """Whole-period biases b_p = k * wavelength with |first_rd - b_p| <= baseline (m); none when the baseline
+    is under half a wavelength and the measured RD (noise, or a reported receiver position off by more than
+    the baseline's slack) lies beyond it from every multiple of the wavelength."""
     if wavelength is None:
         return np.zeros(1)
     k = np.arange(np.ceil((first_rd - baseline) / wavelength), np.floor((first_rd + baseline) / wavelength) + 1)
@@ -399,6 +401,8 @@ class RandomInitializer(_BroadPrior):
         offsets = feasible_offsets(burst.measurements[0, 0], baseline, burst.wavelength)
         directions = rng.normal(size=(self.config.candidate_directions, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        if not len(offsets):  # see LCMAPInitializer.candidates
+            return NaiveInitializer(self.config)(burst, rng)
         points = np.concatenate(
             [locus_points(mobile, fixed, burst.measurements[0, 0] - b, directions) for b in offsets]
         )
@@ -438,6 +442,8 @@ class LCMAPInitializer:
         mobile, fixed = burst.receiver_positions[0], burst.fixed_position
         baseline = np.linalg.norm(mobile - fixed)
         offsets = feasible_offsets(burst.measurements[0, 0], baseline, burst.wavelength)
+        if not len(offsets):  # the RD exceeds the reported baseline by more than a period's slack: no locus
+            return np.zeros((0, 3)), np.zeros(0)
         points = np.concatenate(
             [locus_points(mobile, fixed, burst.measurements[0, 0] - b, self.directions) for b in offsets]
         )

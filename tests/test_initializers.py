@@ -261,3 +261,27 @@ def test_lcmap_with_a_ca_filter_fits_the_acceleration(rng):
     np.testing.assert_allclose(accelerating.accelerations[0], acceleration, atol=0.004)
     straight = make_initializer("lcmap", config, REGION)(burst, rng)
     assert np.linalg.norm(straight.state[:3] - truth_p[-1]) > 2.0
+
+
+@pytest.mark.parametrize("name", ["lcmap", "random"])
+def test_an_rd_beyond_every_period_of_a_short_baseline_falls_back_to_naive(name, rng):
+    """A robot 0.6 m from the fixed hydrophone (as reported) cannot measure an RD of 0.7 m modulo 1.5 m:
+    no whole-period sheet has a locus, and the initializer starts naive instead of failing."""
+    burst, _ = helix_burst(np.array([5.0, 8, -12]), np.zeros(3), offset=0.0, duration=2.0)
+    near = FIXED + np.array([0.6, 0.0, 0.0])
+    measurements = burst.measurements.copy()
+    measurements[:, 0] = 0.7
+    assert len(feasible_offsets(0.7, 0.6, 1.5)) == 0
+    short = Burst(
+        burst.times,
+        measurements,
+        np.tile(near, (len(burst.times), 1)),
+        burst.receiver_velocities,
+        FIXED,
+        burst.noise_covariance,
+        1.5,
+        direct_measurement,
+    )
+    estimate = make_initializer(name, InitializerConfig(), REGION)(short, rng)
+    naive = make_initializer("naive", InitializerConfig(), REGION)(short, rng)
+    np.testing.assert_array_equal(estimate.state, naive.state)
