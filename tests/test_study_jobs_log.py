@@ -78,6 +78,19 @@ def test_the_log_refuses_another_config_or_no_header(tmp_path):
         EpisodeLog(path, other).read()
 
 
+def test_a_log_from_before_a_field_was_added_resumes_but_not_one_with_a_field_removed(tmp_path):
+    path = tmp_path / "episodes.jsonl"
+    old = to_dict(EnvConfig())
+    del old["source"]["keep_within"], old["facility"]  # as a log written before these existed holds it
+    EpisodeLog(path, old).start()
+    with EpisodeLog(path, old).appending() as append:
+        append(("helix", "lcmap", "cv", "signal", 1, None), {"seed": 1})
+    assert len(EpisodeLog(path, to_dict(EnvConfig())).read()) == 1
+    EpisodeLog(path, to_dict(EnvConfig())).start()
+    with pytest.raises(LogMismatch, match=r"another config \(sections \['facility', 'source'\] differ\)"):
+        EpisodeLog(path, old).read()  # the log has fields this config does not: another config
+
+
 def test_pool_workers_run_their_linear_algebra_on_one_thread(monkeypatch):
     """A pool's workers are its cores: BLAS threads on top would oversubscribe them. Each spawned worker
     sees one thread per library (unless the user set a count), and the parent's environment is left as

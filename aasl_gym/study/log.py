@@ -40,7 +40,9 @@ class EpisodeLog:
     def read(self) -> dict[tuple, Row]:
         """The rows of an earlier run by episode key (none if there is no log). A torn last line (the run
         killed mid-write) is skipped: that episode runs again. Raises :class:`LogMismatch` for a log
-        without a config line or with another config than this one."""
+        without a config line or with another config than this one. A log written before fields were
+        added to the config still matches: each new field's default keeps the behaviour it had without it
+        (the project's rule for a new field), so only a changed or removed value is another config."""
         if not self.path.is_file():
             return {}
         lines = self.path.read_text().splitlines()
@@ -49,8 +51,9 @@ class EpisodeLog:
         except (IndexError, KeyError, TypeError, json.JSONDecodeError):
             raise LogMismatch(f"{self.path} does not start with a config line") from None
         expected = self.header["config"]
-        if written != expected:
-            sections = sorted(k for k in set(written) | set(expected) if written.get(k) != expected.get(k))
+        if not _extends(expected, written):
+            keys = set(written) | set(expected)
+            sections = sorted(k for k in keys if k not in expected or not _extends(expected[k], written.get(k)))
             raise LogMismatch(f"{self.path} was written with another config (sections {sections} differ)")
         done = {}
         for line in lines[1:]:
@@ -71,3 +74,10 @@ class EpisodeLog:
                 handle.flush()
 
             yield append
+
+
+def _extends(new: Any, old: Any) -> bool:
+    """Whether ``new`` is ``old`` with keys added to its mappings, at any depth, and nothing else changed."""
+    if isinstance(new, dict) and isinstance(old, dict):
+        return set(old) <= set(new) and all(_extends(new[key], value) for key, value in old.items())
+    return new == old

@@ -133,6 +133,8 @@ def _coefficient_figure(summary: list[Row]) -> Figure:
             extent = _extent(bed, surface)
             image = ax.imshow(grid, origin="lower", aspect="auto", cmap=colours, extent=extent, **limits)
             figure.colorbar(image, ax=ax, label="mean RMSE (m)")
+            ax.set_xticks(bed)  # a tick at each cell's centre
+            ax.set_yticks(surface)
             ax.set_title(f"{world} world: {title}", fontsize=9)
             ax.set_xlabel("a_bed")
             ax.set_ylabel("a_surf")
