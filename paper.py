@@ -23,6 +23,7 @@ trials with the paper's fixed-array baselines on the same sources (``aasl_gym.st
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import shlex
 import sys
 from pathlib import Path
@@ -108,6 +109,9 @@ def run(args: argparse.Namespace, jobs: list[Job], header: dict) -> list[dict]:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.study == "arrays" and importlib.util.find_spec("cvxpy") is None:
+        print("error: paper.py arrays needs cvxpy for the SDP baseline: pip install -e '.[arrays]'", file=sys.stderr)
+        return 2
     command = "python paper.py " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
     try:
         scenario = scenario_fields(STUDY_SCENARIOS[args.study])

@@ -144,3 +144,10 @@ def test_a_tiny_array_comparison_writes_its_table(tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert "| SDP, 8 receivers | 8 | 64 | position, per snapshot |" in report
     assert "| arrays' RD noise sd (m) | OSLS RMSE (m): mean (median) | its bound (m) |" in report
+
+
+def test_the_array_study_without_cvxpy_says_what_to_install(monkeypatch, capsys):
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "cvxpy" else real(name, *a))
+    assert paper.main(["arrays", "--trials", "1"]) == 2
+    assert "needs cvxpy for the SDP baseline: pip install -e '.[arrays]'" in capsys.readouterr().err
