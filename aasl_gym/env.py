@@ -364,10 +364,14 @@ class AASLEnv(gym.Env):
             self.fixed,
             self.config.source.range_rate_bias,
         )
+        self._report_navigation()
+        return z
+
+    def _report_navigation(self) -> None:
+        """What the robot's navigation reports of its position and velocity this step."""
         self.reported_position, self.reported_velocity = self.navigation.report(
             self.np_random, self.receiver_position, self.receiver_velocity, self.dt
         )
-        return z
 
     def _track(self, z: np.ndarray) -> TrackerOutput:
         """The tracker takes the frame with the acoustic R the sensor gives it (the tracker adds the

@@ -28,12 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.estimator import SourceTracker
 from aasl_gym.facility import loop_radius, pod_hydrophones
-from aasl_gym.measurement_models import model_snr
+from aasl_gym.measurement_models import received_snr
 from aasl_gym.motion import SourceState, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 
@@ -41,20 +40,7 @@ from aasl_gym.patrols import PatrolGeometry, patrol_command
 def hydrophone_snr_db(config: EnvConfig, source: np.ndarray, hydrophones: np.ndarray) -> np.ndarray:
     """In-band SNR (dB) of a source at ``source`` (3,; m) at each hydrophone (N, 3): spreading from the
     source level to the world's noise level, times the multipath sum's gain with reflections on."""
-    snr = model_snr(config, source, hydrophones)
-    world = config.world
-    if world.reflections:
-        wavenumber = 2 * math.pi / config.wavelength
-        factor = geometry.multipath_factor(
-            np.broadcast_to(source, hydrophones.shape),
-            hydrophones,
-            world.water_depth,
-            world.surface_reflection,
-            world.bed_reflection,
-            wavenumber,
-        )
-        snr = snr * np.abs(factor) ** 2
-    return 10 * np.log10(snr)
+    return 10 * np.log10(received_snr(config, source, hydrophones))
 
 
 class FacilityEnv(AASLEnv):
@@ -116,9 +102,7 @@ class FacilityEnv(AASLEnv):
                 self._pair_with(int(np.argmax(snr_db)))
         if self.pod >= 0:
             return super()._measure()
-        self.reported_position, self.reported_velocity = self.navigation.report(
-            self.np_random, self.receiver_position, self.receiver_velocity, self.dt
-        )
+        self._report_navigation()
         return np.full(2, np.nan)
 
     def _pair_with(self, pod: int) -> None:

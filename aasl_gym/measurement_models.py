@@ -346,6 +346,21 @@ def model_snr(config: EnvConfig, source_position: np.ndarray, receiver_position:
     return 10 ** ((config.source.source_level_db - 20 * np.log10(distance) - config.world.noise_level_db) / 10)
 
 
+def received_snr(config: EnvConfig, source_position: np.ndarray, receiver_position: np.ndarray) -> np.ndarray:
+    """In-band SNR (linear) at a receiver through the multipath sum: :func:`model_snr` times |M|^2, M the
+    tone's multipath factor (:func:`~aasl_gym.geometry.multipath_factor`) where the world has reflections;
+    broadcasts over leading dimensions."""
+    snr = model_snr(config, source_position, receiver_position)
+    if not config.world.reflections:
+        return snr
+    channel = Propagation.from_config(config.world, config.source.frequency)
+    source, receiver = np.broadcast_arrays(source_position, receiver_position)
+    factor = geometry.multipath_factor(
+        source, receiver, channel.water_depth, channel.surface_reflection, channel.bed_reflection, channel.wavenumber
+    )
+    return snr * np.abs(factor) ** 2
+
+
 def expected_noise_covariance(config: EnvConfig, source_position: np.ndarray, mobile: np.ndarray) -> np.ndarray:
     """R_eff (..., 2, 2) a measurement would have with the source at ``source_position`` and the mobile
     hydrophone at ``mobile`` (m; broadcasts): geometric mode's fixed sd, or in signal mode the sd of

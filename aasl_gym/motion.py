@@ -116,14 +116,14 @@ def _keeps_within(state: SourceState, source: SourceConfig, world: WorldConfig, 
 def _draw_source(rng: np.random.Generator, kind: str, source: SourceConfig, world: WorldConfig) -> SourceState:
     region = source_region(world, source)
     position = sample_initial_position(rng, source.initial_radius, region, np.asarray(source.initial_centre))
-    held = source.depth is not None
-    if source.depth is not None:
-        position[2] = -source.depth
+    depth = source.depth
+    if depth is not None:  # held there: it moves horizontally
+        position[2] = -depth
     zero = np.zeros(3)
     if kind == "static":
         return SourceState(kind, position, zero, zero, 0.0, source.max_speed)
     speed = rng.uniform(*source.speed_range)
-    velocity = _direction_velocity(rng, speed, 0.0 if held else source.max_vertical_speed)
+    velocity = _direction_velocity(rng, speed, source.max_vertical_speed if depth is None else 0.0)
     acceleration = zero
     turn_rate = 0.0
     if kind == "ca":

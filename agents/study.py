@@ -84,10 +84,8 @@ def run_array_trial(job: Job) -> Row:
         "ms_median": 1e3 * float(np.median(seconds)),
     }
     sources = np.array([source for _, _, source in steps]).reshape(-1, 3)
-    world = env.config.world
-    wavelength = world.sound_speed / env.config.source.frequency
     sd = env.config.measurement.range_difference_sd
-    row.update(array_row(sources, env.fixed, wavelength, sd, job.seed))
+    row.update(array_row(sources, env.fixed, env.config.wavelength, sd, job.seed))
     return row
 
 

@@ -43,14 +43,13 @@ from dataclasses import replace
 import numpy as np
 from tqdm import tqdm
 
-from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.io import atomic_write_text
 from aasl_gym.measurement_models import (
     Propagation,
-    model_snr,
     multipath_measurement,
+    received_snr,
     receiver_jacobian,
     receiver_noise,
     signal_noise_sd,
@@ -90,14 +89,7 @@ def matched_weights(
         return multipath_measurement(model, propagation, p, v, p_m, v_m, p_f)
 
     if config.measurement.mode == "signal":
-        channel = (propagation.water_depth, propagation.surface_reflection, propagation.bed_reflection)
-        gains = [
-            np.abs(geometry.multipath_factor(truth[:, :3], r, *channel, propagation.wavenumber))
-            if config.world.reflections
-            else 1.0
-            for r in (mobile, fixed)
-        ]
-        snr = [model_snr(config, truth[:, :3], r) * g**2 for r, g in zip((mobile, fixed), gains)]
+        snr = [received_snr(config, truth[:, :3], r) for r in (mobile, fixed)]
         sd = signal_noise_sd(config, snr[0], snr[1])
     else:
         sd = np.broadcast_to(

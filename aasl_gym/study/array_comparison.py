@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from aasl_gym import arrays
+from aasl_gym import arrays, metrics
 from aasl_gym.study.log import Row
+from aasl_gym.study.stats import mean_sd
 
 ARRAY_RECEIVERS = {"osls": 6, "sdp": 8}  # the paper's receivers per pod for each baseline
 NOISE_LEVELS = (0.05, 0.01, 0.005, 0.001, 0.0005, 0.0002, 0.0001, 0.00005)  # m, the arrays' RD noise sd in the sweep
@@ -86,8 +87,9 @@ def locate_snapshots(
 
 
 def _rmse(errors: np.ndarray) -> float | None:
-    finite = errors[np.isfinite(errors)]
-    return float(np.sqrt(np.mean(finite**2))) if finite.size else None
+    """:func:`aasl_gym.metrics.rmse` over the solved snapshots; None if none was."""
+    value = metrics.rmse(errors)
+    return None if np.isnan(value) else value
 
 
 def _bound_rmse(receivers: np.ndarray, sources: np.ndarray, sd: float) -> float | None:
@@ -137,12 +139,6 @@ def time_calls(owner: Any, method: str) -> list[float]:
     return seconds
 
 
-def _mean_sd(values: list[float]) -> tuple[float | None, float | None]:
-    if not values:
-        return None, None
-    return float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
-
-
 def _mean(values: list[float | None]) -> float | None:
     known = [value for value in values if value is not None]
     return float(np.mean(known)) if known else None
@@ -162,7 +158,7 @@ def summarize(rows: list[Row], pods: int = 8) -> list[Row]:
     for name, per_pod in (*ARRAY_RECEIVERS.items(), ("ours", None)):
         entries = [row[name] for row in rows] if name != "ours" else [row["tracker"] for row in rows]
         rmse = [entry["rmse"] for entry in entries if entry["rmse"] is not None]
-        mean, sd = _mean_sd(rmse)
+        mean, sd = mean_sd(rmse)
         table.append(
             {
                 "method": name,
@@ -191,11 +187,10 @@ def summarize_sweep(rows: list[Row], sd: float) -> list[Row]:
         entry: Row = {"sd": level}
         for name in ARRAY_RECEIVERS:
             values = [row[name]["sweep_rmse"][f"{level:g}"] for row in rows]
-            values = [value for value in values if value is not None]
             bound = _median([row[name]["bound_rmse"] for row in rows])
             entry[name] = {
-                "rmse_mean": float(np.mean(values)) if values else None,
-                "rmse_median": float(np.median(values)) if values else None,
+                "rmse_mean": _mean(values),
+                "rmse_median": _median(values),
                 "bound_rmse": None if bound is None else bound * level / sd,
             }
         table.append(entry)

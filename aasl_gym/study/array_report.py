@@ -104,7 +104,7 @@ def write_array_comparison(
     results: dict[str, Any] = {"command": command, "study": study.name, "scenario": study.scenario, "motion": motion}
     results |= {"config": to_dict(config), "trials": rows, "summary": summary, "sweep": sweep}
     atomic_write_json(out / "results.json", results)
-    aperture = APERTURE_WAVELENGTHS * config.world.sound_speed / config.source.frequency
+    aperture = APERTURE_WAVELENGTHS * config.wavelength
     lines = [
         "# The reference paper's comparison with fixed arrays",
         "",

@@ -36,6 +36,7 @@ from aasl_gym.patrols import PatrolGeometry, helix_reference
 from aasl_gym.scenarios import scenario_config
 from aasl_gym.study.jobs import FACILITY_PATROL, MATCHED_FILTER, Job
 from aasl_gym.study.log import Row
+from aasl_gym.study.stats import mean_sd
 
 DIVERGENCE_RMSE = 30.0  # m: a trial whose RMSE exceeds it diverged (the paper's definition)
 WORLD_MODELS = ("linear", "phasor")  # how the world's reflections shape RD: the paper's first order, the exact tone
@@ -210,13 +211,6 @@ def study_header(study: Study, motion: str) -> dict[str, Any]:
     return {"study": study.name, "scenario": study.scenario, "motion": motion_field, "base": base, "variants": variants}
 
 
-def _mean_sd(values: list[float]) -> tuple[float | None, float | None]:
-    if not values:
-        return None, None
-    sd = float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
-    return float(np.mean(values)), sd
-
-
 def converged(row: Row) -> bool:
     """The paper's test: the trial's RMSE is known and at most :data:`DIVERGENCE_RMSE`."""
     return row["rmse"] is not None and row["rmse"] <= DIVERGENCE_RMSE
@@ -244,11 +238,11 @@ def _trial_statistics(trials: list[Row]) -> Row:
     kept = [row for row in trials if converged(row)]
     entry: Row = {"n": len(trials), "converged_rate": len(kept) / len(trials) if trials else None}
     for metric in ("rmse", "final_error", "max_error", "rmse_second_half"):
-        entry[f"{metric}_mean"], entry[f"{metric}_sd"] = _mean_sd([row[metric] for row in kept])
+        entry[f"{metric}_mean"], entry[f"{metric}_sd"] = mean_sd([row[metric] for row in kept])
     entry["success_rate_1m"] = sum(row["success"]["1.0"] for row in trials) / len(trials) if trials else None
     median = float(np.median([math.inf if row["rmse"] is None else row["rmse"] for row in trials] or [math.inf]))
     entry["rmse_median"] = median if math.isfinite(median) else None
-    entry["rmse_all_mean"] = _mean_sd([row["rmse"] for row in trials if row["rmse"] is not None])[0]
+    entry["rmse_all_mean"] = mean_sd([row["rmse"] for row in trials if row["rmse"] is not None])[0]
     entry["no_estimate"] = sum(row["rmse"] is None for row in trials)
     return entry
 

@@ -44,6 +44,12 @@ def _fmt(value: float | None, digits: int = 2) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def _rmse_cells(rmse: list[float]) -> tuple[str, str]:
+    """The table's "mean ± sd" (with two trials or more) and median of trials' RMSEs (m)."""
+    spread = f"{np.mean(rmse):.2f} ± {np.std(rmse, ddof=1):.2f}" if len(rmse) > 1 else "-"
+    return spread, f"{np.median(rmse):.2f}" if rmse else "-"
+
+
 def _pm(entry: Row, metric: str) -> str:
     return f"{_fmt(entry[metric + '_mean'])} ± {_fmt(entry[metric + '_sd'])}"
 
@@ -191,9 +197,8 @@ def _lake_section(summary: list[Row], rows: list[Row]) -> list[str]:
     for name, paper_rmse in PAPER_LAKE.items():
         trials = [row for row in rows if row["variant"].startswith(f"{name} filter")]
         rmse = [row["rmse"] for row in trials if row["rmse"] is not None]
-        spread = f"{np.mean(rmse):.2f} ± {np.std(rmse, ddof=1):.2f}" if len(rmse) > 1 else "-"
+        spread, median = _rmse_cells(rmse)
         success = np.mean([row["success"]["1.0"] for row in trials]) if trials else float("nan")
-        median = f"{np.median(rmse):.2f}" if rmse else "-"
         lines.append(
             f"| {name} | {len(trials)} | {len(rmse)} | {spread} | {median} | {success:.0%} | {paper_rmse:.2f} |"
         )
@@ -243,8 +248,7 @@ def _facility_section(rows: list[Row]) -> list[str]:
         same_pod = np.mean([row["pod"] == row["source_pod"] for row in heard]) if heard else float("nan")
         detection = _fmt(float(np.median([row["detection_time"] for row in heard])), 1) if heard else "-"
         rmse = [row["rmse"] for row in trials if row["rmse"] is not None]
-        spread = f"{np.mean(rmse):.2f} ± {np.std(rmse, ddof=1):.2f}" if len(rmse) > 1 else "-"
-        median = _fmt(float(np.median(rmse))) if rmse else "-"
+        spread, median = _rmse_cells(rmse)
         success = np.mean([row["success"]["1.0"] for row in trials])
         delays = [
             row["convergence_time"] - row["detection_time"] for row in heard if row["convergence_time"] is not None

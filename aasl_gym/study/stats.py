@@ -16,6 +16,14 @@ from scipy import stats
 from aasl_gym.study.log import Row
 
 
+def mean_sd(values: Sequence[float]) -> tuple[float | None, float | None]:
+    """Mean and sample sd (None for no values; sd 0 for one)."""
+    if not values:
+        return None, None
+    sd = float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
+    return float(np.mean(values)), sd
+
+
 def mean_ci95(values: Sequence[float] | np.ndarray) -> tuple[float | None, list[float | None]]:
     """Mean and a 95 % Student-t confidence interval (None where it cannot be computed: no values for
     the mean, fewer than two for the interval). NaN is not dropped: callers remove missing values."""
