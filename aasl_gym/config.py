@@ -528,7 +528,9 @@ class FacilityConfig:
     (``AASL-Facility-v0``, :mod:`aasl_gym.facility`). The pods stand in ``rows`` rows, ``spacing`` apart,
     centred on ``world.fixed_position`` (whose depth their hydrophones share). The attack begins at a time
     drawn from ``onset_range``, next to a pod drawn at random; a pod's hydrophone hears it once its SNR
-    (spreading, the multipath sum with reflections on, the world's noise level) reaches ``detection_snr_db``."""
+    (spreading, the multipath sum with reflections on, the world's noise level) reaches ``detection_snr_db``.
+    The tracker pairs the robot with the loudest pod; with ``pairs: all`` every other pod that hears the
+    source adds an extra pair (:mod:`aasl_gym.extra_pairs`)."""
 
     pods: int = 1  # 1: a single pod, world.fixed_position (the other ids ignore this section)
     rows: int = 1
@@ -536,8 +538,10 @@ class FacilityConfig:
     onset_range: tuple[float, float] = (5.0, 30.0)  # s, when the attack begins
     detection_snr_db: float = 20.0  # dB
     loop_margin: float = 10.0  # m: before detection the robot circles this far outside the outermost pods
+    pairs: str = "loudest"  # loudest: the paper's one pair; all: every other pod that hears adds an extra pair
 
     def __post_init__(self) -> None:
+        require_choice(self.pairs, ("loudest", "all"), "facility.pairs")
         require(
             isinstance(self.pods, int) and self.pods >= 1,
             "facility.pods",

@@ -93,7 +93,8 @@ from scipy import stats
 
 from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
-from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_weights
+from aasl_gym.extra_pairs import ExtraPairs
+from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_sigma_points, merwe_weights
 from aasl_gym.fisher import information_prior
 from aasl_gym.initializers import (
     Burst,
@@ -248,6 +249,7 @@ class SourceTracker:
         tracks = f.track_fit and (self._sheets_checkable or self.ripple)
         self.track_length = int(round(config.episode.duration * rate)) + 1 if tracks else 0
         self.prior_mean, self.prior_covariance = information_prior(config)  # what is known before any measurement
+        self.extra_pairs = ExtraPairs(self.wavelength, self.nis_length, f.divergence_nis, self.residual)
         self.reset()
 
     def reset(self) -> None:
@@ -269,6 +271,7 @@ class SourceTracker:
         self.searched = False  # the phasor search ran (once an episode)
         self.pool = np.zeros((0, self.model.dim))  # its fine candidates, refitted at each scheduled re-seed
         self.pool_time = np.nan  # s, when the pool's states are given
+        self.extra_pairs.reset()
 
     def _sigma_measurements(
         self,
@@ -277,8 +280,10 @@ class SourceTracker:
         resolved: np.ndarray,
         mobile: np.ndarray,
         mobile_velocity: np.ndarray,
+        fixed: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """h at the sigma points (H, S, n) of every hypothesis at once, and the noise each adds to R_ac.
+        """h at the sigma points (H, S, n) of every hypothesis at once, and the noise each adds to R_ac; the
+        pair's fixed hydrophone is ``world.fixed_position`` unless ``fixed`` is given (an extra pair's).
 
         The noise is the navigation term H_r Sigma_r H_r^T at the hypothesis's mean (row 0). Under the
         phasor model each sigma point's multipath correction is first taken within half a wavelength of
@@ -288,13 +293,14 @@ class SourceTracker:
         was chosen (``resolved``, by a window fit or a lattice): it gets the correction at its
         mean for every sigma point, and the correction's spread over the sigma points as noise instead.
         """
+        fixed = self.fixed if fixed is None else fixed
         position, velocity = sigmas[..., 0:3], self.model.velocity(sigmas)
-        z = self.measurement_function(position, velocity, mobile, mobile_velocity, self.fixed)
+        z = self.measurement_function(position, velocity, mobile, mobile_velocity, fixed)
         noise = np.zeros((len(sigmas), 2, 2))
         coarse = np.zeros(len(sigmas), dtype=bool)
         if self.ripple:
             assert self.correction_period is not None  # the ripple is the phasor model's, which has one
-            direct = direct_measurement(position, velocity, mobile, mobile_velocity, self.fixed)
+            direct = direct_measurement(position, velocity, mobile, mobile_velocity, fixed)
             correction = z - direct
             centre = correction[:, :1]
             offset = geometry.wrap_to_period(correction[..., 0] - centre[..., 0], self.correction_period)
@@ -308,7 +314,7 @@ class SourceTracker:
         for model, rows in ((self.measurement_function, ~coarse), (direct_measurement, coarse)):
             if rows.any():
                 at_mean = position[rows, 0], velocity[rows, 0]
-                jacobian = receiver_jacobian(model, *at_mean, mobile, mobile_velocity, self.fixed)
+                jacobian = receiver_jacobian(model, *at_mean, mobile, mobile_velocity, fixed)
                 noise[rows] += receiver_noise(jacobian, *self.navigation_sd)
         return z + sigmas[..., -2:], noise
 
@@ -827,6 +833,31 @@ class SourceTracker:
                     hypothesis = self._resolve_ripple(hypothesis, time)
                 kept.append(hypothesis)
         self.bank = kept
+
+    def assimilate_pairs(
+        self,
+        pairs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+        mobile: np.ndarray,
+        mobile_velocity: np.ndarray,
+    ) -> int:
+        """After :meth:`step`, update the running hypotheses with extra pairs' frames of the same step
+        (measurement [RD, RRD], the pair's fixed hydrophone (3,), acoustic R; NaN where a pair did not
+        hear), as :class:`~aasl_gym.extra_pairs.ExtraPairs` tests and places them; returns how many did."""
+        if not self.initialized:
+            return 0
+
+        def predict(hypothesis: Hypothesis, hydrophone: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            ukf = hypothesis.ukf
+            ukf.sigmas_f = merwe_sigma_points(ukf.x, ukf.P, ukf.spread)
+            unresolved = self.ripple and not hypothesis.resolved
+            position_sd = np.array([self._position_sd(ukf.P) if unresolved else 0.0])
+            sigma_z, noise = self._sigma_measurements(
+                ukf.sigmas_f[None], position_sd, np.array([not unresolved]), mobile, mobile_velocity, hydrophone
+            )
+            sigma_z[0, :, 0] -= ukf.sigmas_f[:, -2]  # b_p is the main pair's RD offset alone
+            return sigma_z[0], noise[0]
+
+        return self.extra_pairs.assimilate(self.bank, pairs, predict)
 
     def _reanchor(
         self, z: np.ndarray, ukf: UnscentedKalmanFilter, sigma_z: np.ndarray, noise: np.ndarray

@@ -6,14 +6,17 @@ An episode: the attack begins at a time drawn from ``facility.onset_range``, nex
 still until then). Until a pod's hydrophone hears it (``facility.detection_snr_db``), the robot circles the
 facility and the tracker has no pair to measure with. On detection the robot heads for the pod that hears
 the source loudest and flies the spiral about it; the tracker pairs the mobile hydrophone with that pod's,
-as the reference paper does, with its prior about that pod. The action is a residual on that scripted
-command, as in the other patrol ids, and the observation, reward and metrics are theirs (the metrics count
+as the reference paper does, with its prior about that pod. With ``facility.pairs: all`` every other pod
+whose hydrophone hears the source adds an extra pair, with a sensor of its own from the step it first hears
+(:mod:`aasl_gym.extra_pairs` says how the tracker tests and takes them). The action is a residual on that
+scripted command, as in the other patrol ids, and the observation, reward and metrics are theirs (the metrics count
 from the tracker's estimate, so from after detection). The observation does not say which pod is paired or
 whether the attack was heard; a policy sees it through the estimate once the tracker runs. The robot is kept
 out of the paired pod's sphere only; the config requires the patrols to pass above every pod.
 
 Extra ``info`` keys: ``detected`` (bool), ``pod`` (the paired pod's index, -1 before detection),
-``source_pod`` (the pod the attack began next to) and ``detection_time`` (s, inf before); ``fixed_position``
+``extra_pairs`` (how many extra pairs updated the tracker this step), ``source_pod`` (the pod the attack
+began next to) and ``detection_time`` (s, inf before); ``fixed_position``
 is the paired pod's hydrophone (before detection: ``world.fixed_position``, the facility's centre). Before
 detection there is no frame: ``measurement`` is NaN, as for a lost frame, and ``snr_db`` -inf.
 """
@@ -30,11 +33,12 @@ import numpy as np
 
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
-from aasl_gym.estimator import SourceTracker
+from aasl_gym.estimator import SourceTracker, TrackerOutput
 from aasl_gym.facility import loop_radius, pod_hydrophones
 from aasl_gym.measurement_models import received_snr
 from aasl_gym.motion import SourceState, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
+from aasl_gym.sensors import Sensor, make_sensor
 
 
 def hydrophone_snr_db(config: EnvConfig, source: np.ndarray, hydrophones: np.ndarray) -> np.ndarray:
@@ -67,6 +71,9 @@ class FacilityEnv(AASLEnv):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         # Unpaired again before the base class resets the tracker and its prior's information.
         self.tracker, self.pod, self.detection_time = self.unpaired_tracker, -1, math.inf
+        self.extra_sensors: dict[int, Sensor] = {}  # pod -> the sensor of its extra pair with the robot
+        self.extra_frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # this step's
+        self.extra_used = 0
         self.fixed = np.asarray(self.config.world.fixed_position, dtype=float)
         self.patrol_geometry = PatrolGeometry.from_config(self.config)
         observation, info = super().reset(seed=seed, options=options)
@@ -101,9 +108,46 @@ class FacilityEnv(AASLEnv):
             if snr_db.max() >= self.config.facility.detection_snr_db:
                 self._pair_with(int(np.argmax(snr_db)))
         if self.pod >= 0:
-            return super()._measure()
+            z = super()._measure()
+            if self.config.facility.pairs == "all":
+                self.extra_frames = self._measure_extra_pairs()
+            return z
         self._report_navigation()
         return np.full(2, np.nan)
+
+    def _measure_extra_pairs(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """[RD, RRD], hydrophone and acoustic R of the robot's pair with every other pod that hears the
+        source; NaN for a pod that heard it before and no longer does (a gap in its track)."""
+        cfg, frames = self.config, []
+        snr_db = hydrophone_snr_db(cfg, self.source.position, self.hydrophones)
+        heard = snr_db >= cfg.facility.detection_snr_db
+        for pod in map(int, np.flatnonzero(heard)):
+            if pod == self.pod:
+                continue
+            if pod not in self.extra_sensors:
+                self.extra_sensors[pod] = make_sensor(cfg)
+                self.extra_sensors[pod].reset(self.np_random)
+            sensor = self.extra_sensors[pod]
+            z = sensor.measure(
+                self.np_random,
+                self._time,
+                self.source.position,
+                self.source.velocity,
+                self.receiver_position,
+                self.receiver_velocity,
+                self.hydrophones[pod],
+                cfg.source.range_rate_bias,
+            )
+            frames.append((z, self.hydrophones[pod], sensor.covariance()))
+        lost = [pod for pod in self.extra_sensors if not heard[pod]]
+        frames += [(np.full(2, np.nan), self.hydrophones[pod], np.eye(2)) for pod in lost]
+        return frames
+
+    def _track(self, z: np.ndarray) -> TrackerOutput:
+        out = super()._track(z)
+        frames, self.extra_frames = self.extra_frames, []
+        self.extra_used = self.tracker.assimilate_pairs(frames, self.reported_position, self.reported_velocity)
+        return out
 
     def _pair_with(self, pod: int) -> None:
         """The tracker, the pair and the spiral move to pod ``pod``: a tracker of that pod's hydrophone,
@@ -134,4 +178,5 @@ class FacilityEnv(AASLEnv):
             "pod": self.pod,
             "source_pod": self.source_pod,
             "detection_time": self.detection_time,
+            "extra_pairs": self.extra_used,
         }

@@ -91,6 +91,21 @@ def test_a_log_from_before_a_field_was_added_resumes_but_not_one_with_a_field_re
         EpisodeLog(path, old).read()  # the log has fields this config does not: another config
 
 
+def test_a_study_that_gained_variants_resumes_but_not_one_whose_variant_changed(tmp_path):
+    from aasl_gym.study.paper import make_study, study_header
+
+    path = tmp_path / "episodes.jsonl"
+    header = study_header(make_study("facility"), "cv")
+    before = header | {"variants": header["variants"][:1]}  # the log of the study's first variant only
+    EpisodeLog(path, before).start()
+    with EpisodeLog(path, before).appending() as append:
+        append(("facility", "lcmap", "cv", "signal", 1, "cv", "loudest pod"), {"seed": 1})
+    assert len(EpisodeLog(path, header).read()) == 1
+    changed = header | {"variants": [{"facility": {"pairs": "all"}}, *header["variants"][1:]]}
+    with pytest.raises(LogMismatch, match=r"sections \['variants'\] differ"):
+        EpisodeLog(path, changed).read()
+
+
 def test_pool_workers_run_their_linear_algebra_on_one_thread(monkeypatch):
     """A pool's workers are its cores: BLAS threads on top would oversubscribe them. Each spawned worker
     sees one thread per library (unless the user set a count), and the parent's environment is left as

@@ -42,7 +42,8 @@ class EpisodeLog:
         killed mid-write) is skipped: that episode runs again. Raises :class:`LogMismatch` for a log
         without a config line or with another config than this one. A log written before fields were
         added to the config still matches: each new field's default keeps the behaviour it had without it
-        (the project's rule for a new field), so only a changed or removed value is another config."""
+        (the project's rule for a new field), so only a changed or removed value is another config. So
+        does a study's log from before it gained variants (appended): their rows are new."""
         if not self.path.is_file():
             return {}
         lines = self.path.read_text().splitlines()
@@ -76,8 +77,11 @@ class EpisodeLog:
             yield append
 
 
-def _extends(new: Any, old: Any) -> bool:
-    """Whether ``new`` is ``old`` with keys added to its mappings, at any depth, and nothing else changed."""
+def _extends(new: Any, old: Any, name: str = "") -> bool:
+    """Whether ``new`` is ``old`` with keys added to its mappings, at any depth, and variants appended to a
+    study's ``variants`` (its rows name their variant), and nothing else changed."""
     if isinstance(new, dict) and isinstance(old, dict):
-        return set(old) <= set(new) and all(_extends(new[key], value) for key, value in old.items())
+        return set(old) <= set(new) and all(_extends(new[key], value, key) for key, value in old.items())
+    if name == "variants" and isinstance(new, list) and isinstance(old, list):
+        return new[: len(old)] == old  # a variant's changes are the values it runs with: each one as it was
     return new == old

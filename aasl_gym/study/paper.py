@@ -18,7 +18,8 @@ trials that did not (mean and sample sd), as the paper reports them.
   of the surface vessel, on static, straight (cv), arc (ctrv) and U-shaped (uturn) source paths.
 - ``arrays`` (issue 15): the scenario itself; :mod:`aasl_gym.study.array_comparison` adds the fixed arrays.
 - ``facility`` (issue 15; the paper's 8-pod run): ``AASL-Facility-v0``'s own patrol, the tracker paired with
-  the pod that hears the source loudest, on static, cv and ctrv sources.
+  the pod that hears the source loudest (the paper's set-up), and also with every other pod that hears it as
+  an extra pair (``facility.pairs: all``), on static, cv and ctrv sources.
 """
 
 from __future__ import annotations
@@ -161,6 +162,13 @@ def lake_variants() -> tuple[Variant, ...]:
     )
 
 
+# The paper's pair (the loudest pod's hydrophone with the robot's), then every pod that hears as an extra pair.
+FACILITY_VARIANTS = (
+    Variant("loudest pod", {"pair": "loudest pod"}, {}, FACILITY_PATROL, True),
+    Variant("every pod that hears", {"pair": "every pod that hears"}, {"facility": {"pairs": "all"}}, FACILITY_PATROL),
+)
+
+
 def make_study(
     name: str, trials: int | None = None, grid: int = 6, drift: float = 0.0, changes: dict[str, Any] | None = None
 ) -> Study:
@@ -175,10 +183,7 @@ def make_study(
         "navigation": lambda: (trials or 10, navigation_variants(drift=drift)),
         "arrays": lambda: (trials or 100, (Variant("arrays", {}),)),  # the scenario itself; the arrays ride along
         "lake": lambda: (trials or 20, lake_variants()),
-        "facility": lambda: (
-            trials or 20,
-            (Variant("loudest pod", {"pair": "loudest pod"}, {}, FACILITY_PATROL, True),),
-        ),
+        "facility": lambda: (trials or 20, FACILITY_VARIANTS),
     }
     if name not in variants:
         raise ValueError(f"unknown study {name!r}; allowed: {sorted(variants)}")

@@ -238,26 +238,55 @@ def _facility_section(rows: list[Row]) -> list[str]:
     lines = [
         "## The facility: detection, hand-over and tracking",
         "",
-        "| source | trials | heard | paired with the attacked pod | detection (s): median | RMSE (m): mean ± sd "
-        "| median RMSE (m) | success 1 m | time to 1 m after detection (s): median | paper's RMSE (m) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| source | pairs | trials | heard | paired with the attacked pod | detection (s): median "
+        "| RMSE (m): mean ± sd | median RMSE (m) | success 1 m | time to 1 m after detection (s): median "
+        "| final error (m): median | RMSE, 2nd half (m): median | paper's RMSE (m) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for motion in dict.fromkeys(row["motion"] for row in rows):
-        trials = [row for row in rows if row["motion"] == motion]
+    cells = dict.fromkeys((row["motion"], row["variant"]) for row in rows)
+    for motion, variant in cells:
+        trials = [row for row in rows if row["motion"] == motion and row["variant"] == variant]
         heard = [row for row in trials if row["detection_time"] is not None]
         same_pod = np.mean([row["pod"] == row["source_pod"] for row in heard]) if heard else float("nan")
         detection = _fmt(float(np.median([row["detection_time"] for row in heard])), 1) if heard else "-"
-        rmse = [row["rmse"] for row in trials if row["rmse"] is not None]
-        spread, median = _rmse_cells(rmse)
+        spread, median = _rmse_cells([row["rmse"] for row in trials if row["rmse"] is not None])
         success = np.mean([row["success"]["1.0"] for row in trials])
         delays = [
             row["convergence_time"] - row["detection_time"] for row in heard if row["convergence_time"] is not None
         ]
-        delay = _fmt(float(np.median(delays)), 1) if delays else "-"
         lines.append(
-            f"| {motion} | {len(trials)} | {len(heard) / len(trials):.0%} | {same_pod:.0%} | {detection} | {spread} "
-            f"| {median} | {success:.0%} | {delay} | {PAPER_FACILITY_RMSE:.2f} |"
+            f"| {motion} | {variant} | {len(trials)} | {len(heard) / len(trials):.0%} | {same_pod:.0%} | {detection} "
+            f"| {spread} | {median} | {success:.0%} | {_median_cell(delays, 1)} "
+            f"| {_median_cell([row['final_error'] for row in trials])} "
+            f"| {_median_cell([row['rmse_second_half'] for row in trials])} | {PAPER_FACILITY_RMSE:.2f} |"
         )
+    return lines + ["", *_paired_lines(rows, "loudest pod", "rmse")]
+
+
+def _median_cell(values: list[float | None], digits: int = 2) -> str:
+    """The median of the known ``values``, or "-"."""
+    known = [value for value in values if value is not None]
+    return _fmt(float(np.median(known)), digits) if known else "-"
+
+
+def _paired_lines(rows: list[Row], baseline: str, metric: str) -> list[str]:
+    """Per motion and variant other than ``baseline``, on the seeds both ran: the share of trials whose
+    ``metric`` is below the baseline's and the median of their ratio."""
+    known = {(row["motion"], row["variant"], row["seed"]): row[metric] for row in rows if row[metric] is not None}
+    lines = []
+    for motion, variant in dict.fromkeys((m, v) for m, v, _ in known if v != baseline):
+        pairs = [
+            (value, known[(motion, baseline, seed)])
+            for (m, v, seed), value in known.items()
+            if (m, v) == (motion, variant) and (motion, baseline, seed) in known
+        ]
+        if pairs:
+            ratio = float(np.median([value / base for value, base in pairs]))
+            lower = np.mean([value < base for value, base in pairs])
+            lines.append(
+                f"- {motion}, {variant} against {baseline}, {len(pairs)} paired seeds: {metric} lower in "
+                f"{lower:.0%}, median ratio {ratio:.2f}."
+            )
     return lines
 
 
