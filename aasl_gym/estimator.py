@@ -93,8 +93,13 @@ from scipy import stats
 
 from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
-from aasl_gym.extra_pairs import ExtraPairs
-from aasl_gym.filters import UnscentedKalmanFilter, make_motion_model, merwe_sigma_points, merwe_weights
+from aasl_gym.extra_pairs import ExtraPairs, Frame
+from aasl_gym.filters import (
+    UnscentedKalmanFilter,
+    make_motion_model,
+    merwe_weights,
+    whole_periods,
+)
 from aasl_gym.fisher import information_prior
 from aasl_gym.initializers import (
     Burst,
@@ -249,7 +254,10 @@ class SourceTracker:
         tracks = f.track_fit and (self._sheets_checkable or self.ripple)
         self.track_length = int(round(config.episode.duration * rate)) + 1 if tracks else 0
         self.prior_mean, self.prior_covariance = information_prior(config)  # what is known before any measurement
-        self.extra_pairs = ExtraPairs(self.wavelength, self.nis_length, f.divergence_nis, self.residual)
+        nis_cap = RIPPLE_NIS_CAP * f.divergence_nis if self.ripple else np.inf  # as :meth:`_inconsistent` caps
+        self.extra_pairs = ExtraPairs(
+            self.wavelength, self.nis_length, f.divergence_nis, nis_cap, self.navigation_sd, self.residual
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -272,6 +280,7 @@ class SourceTracker:
         self.pool = np.zeros((0, self.model.dim))  # its fine candidates, refitted at each scheduled re-seed
         self.pool_time = np.nan  # s, when the pool's states are given
         self.extra_pairs.reset()
+        self.main_frame: tuple[np.ndarray, np.ndarray] | None = None  # z and R_ac the bank last took
 
     def _sigma_measurements(
         self,
@@ -280,20 +289,32 @@ class SourceTracker:
         resolved: np.ndarray,
         mobile: np.ndarray,
         mobile_velocity: np.ndarray,
-        fixed: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """h at the sigma points (H, S, n) of every hypothesis at once, and the noise each adds to R_ac; the
-        pair's fixed hydrophone is ``world.fixed_position`` unless ``fixed`` is given (an extra pair's).
+        """h at the sigma points (H, S, n) of every hypothesis at once, the state's offsets b_p, b_v added,
+        and the noise each adds to R_ac: the navigation term H_r Sigma_r H_r^T at the hypothesis's mean
+        (row 0), and what :meth:`_sigma_model` adds for a hypothesis that cannot resolve the ripple."""
+        z, noise, jacobian = self._sigma_model(sigmas, position_sd, resolved, mobile, mobile_velocity, self.fixed)
+        return z + sigmas[..., -2:], noise + receiver_noise(jacobian, *self.navigation_sd)
 
-        The noise is the navigation term H_r Sigma_r H_r^T at the hypothesis's mean (row 0). Under the
-        phasor model each sigma point's multipath correction is first taken within half a wavelength of
-        the central point's (a branch cut between them is not spread). A hypothesis whose position sd
-        (``position_sd``, m, largest axis) exceeds ``filter.ripple_lock_sd`` cannot resolve the
+    def _sigma_model(
+        self,
+        sigmas: np.ndarray,
+        position_sd: np.ndarray,
+        resolved: np.ndarray,
+        mobile: np.ndarray,
+        mobile_velocity: np.ndarray,
+        fixed: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The filter's model of the pair with hydrophone ``fixed`` at the sigma points (H, S, n), without the
+        offsets; the noise the ripple adds (H, 2, 2); the receiver Jacobian at each mean (H, 2, 6).
+
+        Under the phasor model each sigma point's multipath correction is first taken within half a
+        wavelength of the central point's (a branch cut between them is not spread). A hypothesis whose
+        position sd (``position_sd``, m, largest axis) exceeds ``filter.ripple_lock_sd`` cannot resolve the
         correction's ripple, whose scale is a fraction of a wavelength, unless its point on the ripple
         was chosen (``resolved``, by a window fit or a lattice): it gets the correction at its
         mean for every sigma point, and the correction's spread over the sigma points as noise instead.
         """
-        fixed = self.fixed if fixed is None else fixed
         position, velocity = sigmas[..., 0:3], self.model.velocity(sigmas)
         z = self.measurement_function(position, velocity, mobile, mobile_velocity, fixed)
         noise = np.zeros((len(sigmas), 2, 2))
@@ -311,12 +332,12 @@ class SourceTracker:
             # The Merwe weights of rows 1..2n, 1 / (2 (n + lambda)), about the central point.
             noise[coarse] = np.einsum("hsi,hsj->hij", deviation, deviation) / (2 * self.sigma_spread)
             z[coarse] = direct[coarse] + centre[coarse]
+        jacobian = np.zeros((len(sigmas), 2, 6))
         for model, rows in ((self.measurement_function, ~coarse), (direct_measurement, coarse)):
             if rows.any():
                 at_mean = position[rows, 0], velocity[rows, 0]
-                jacobian = receiver_jacobian(model, *at_mean, mobile, mobile_velocity, fixed)
-                noise[rows] += receiver_noise(jacobian, *self.navigation_sd)
-        return z + sigmas[..., -2:], noise
+                jacobian[rows] = receiver_jacobian(model, *at_mean, mobile, mobile_velocity, fixed)
+        return z, noise, jacobian
 
     def residual(self, measured: np.ndarray, predicted: np.ndarray) -> np.ndarray:
         """z - h, with the RD part modulo the wavelength under the phasor model (see ``correction_period``)."""
@@ -813,6 +834,7 @@ class SourceTracker:
         sigma_z, extra = self._sigma_measurements(sigmas, position_sd, ~np.array(unresolved), mobile, mobile_velocity)
         if self.gap:
             z = self._reanchor(z, predicted[0].ukf, sigma_z[0], noise + extra[0])
+        self.main_frame = (z, noise)
         kept = []
         for hypothesis, predicted_z, extra_noise in zip(predicted, sigma_z, extra):
             ukf = hypothesis.ukf
@@ -835,29 +857,29 @@ class SourceTracker:
         self.bank = kept
 
     def assimilate_pairs(
-        self,
-        pairs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
-        mobile: np.ndarray,
-        mobile_velocity: np.ndarray,
+        self, frames: Sequence[Frame], mobile: np.ndarray, mobile_velocity: np.ndarray, shared: np.ndarray
     ) -> int:
         """After :meth:`step`, update the running hypotheses with extra pairs' frames of the same step
         (measurement [RD, RRD], the pair's fixed hydrophone (3,), acoustic R; NaN where a pair did not
-        hear), as :class:`~aasl_gym.extra_pairs.ExtraPairs` tests and places them; returns how many did."""
+        hear), as :class:`~aasl_gym.extra_pairs.ExtraPairs` tests, places and conditions them on this
+        step's main frame; ``shared`` is the acoustic covariance every pair of the frame shares (the
+        robot's channel). Returns how many pairs updated a hypothesis. Each pair's h is the main pair's
+        model with its hydrophone, with b_v (the robot's clock against the facility's one) but not b_p."""
         if not self.initialized:
             return 0
 
-        def predict(hypothesis: Hypothesis, hydrophone: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            ukf = hypothesis.ukf
-            ukf.sigmas_f = merwe_sigma_points(ukf.x, ukf.P, ukf.spread)
-            unresolved = self.ripple and not hypothesis.resolved
-            position_sd = np.array([self._position_sd(ukf.P) if unresolved else 0.0])
-            sigma_z, noise = self._sigma_measurements(
-                ukf.sigmas_f[None], position_sd, np.array([not unresolved]), mobile, mobile_velocity, hydrophone
-            )
-            sigma_z[0, :, 0] -= ukf.sigmas_f[:, -2]  # b_p is the main pair's RD offset alone
-            return sigma_z[0], noise[0]
+        def model(hypothesis: Hypothesis, sigmas: np.ndarray, hydrophone: np.ndarray | None):
+            if self.ripple and not hypothesis.resolved:
+                return None  # its sigma points span the ripple: the main pair's spread noise is its alone
+            fixed = self.fixed if hydrophone is None else hydrophone
+            resolved = np.array([True])
+            z, _, jacobian = self._sigma_model(sigmas[None], np.zeros(1), resolved, mobile, mobile_velocity, fixed)
+            z[0, :, 1] += sigmas[:, -1]
+            if hydrophone is None:
+                z[0, :, 0] += sigmas[:, -2]
+            return z[0], jacobian[0]
 
-        return self.extra_pairs.assimilate(self.bank, pairs, predict)
+        return self.extra_pairs.assimilate(self.bank, frames, model, self.main_frame, shared)
 
     def _reanchor(
         self, z: np.ndarray, ukf: UnscentedKalmanFilter, sigma_z: np.ndarray, noise: np.ndarray
@@ -872,10 +894,8 @@ class SourceTracker:
         self.gap = False
         if self.wavelength is None:
             return z
-        mean = ukf.Wm @ sigma_z[:, 0]
-        variance = ukf.Wc @ (sigma_z[:, 0] - mean) ** 2 + noise[0, 0]
-        periods = np.round((z[0] - mean) / self.wavelength)
-        if periods == 0 or variance > (0.25 * self.wavelength) ** 2:
+        periods = whole_periods(z[0], sigma_z[:, 0], ukf, noise[0, 0], self.wavelength)
+        if not periods:  # none, or too wide to tell
             return z
         logger.debug("the RD track slipped %+d periods across a gap; re-anchored", periods)
         self.range_offset -= periods * self.wavelength
@@ -966,6 +986,7 @@ class SourceTracker:
         ``noise_covariance`` is this measurement's acoustic R (the tracker's fixed one if None); each
         hypothesis adds the navigation term at its own estimate."""
         z = np.asarray(z, dtype=float)
+        self.main_frame = None
         if not np.all(np.isfinite(z)):
             return self._coast(time, rng)
         if self.gap and not self.initialized:

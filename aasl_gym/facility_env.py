@@ -7,8 +7,9 @@ still until then). Until a pod's hydrophone hears it (``facility.detection_snr_d
 facility and the tracker has no pair to measure with. On detection the robot heads for the pod that hears
 the source loudest and flies the spiral about it; the tracker pairs the mobile hydrophone with that pod's,
 as the reference paper does, with its prior about that pod. With ``facility.pairs: all`` every other pod
-whose hydrophone hears the source adds an extra pair, with a sensor of its own from the step it first hears
-(:mod:`aasl_gym.extra_pairs` says how the tracker tests and takes them). The action is a residual on that
+whose hydrophone hears the source adds an extra pair: its channel of the robot's frame, paired with the
+robot's channel (:meth:`~aasl_gym.sensors.Sensor.measure_pairs`; :mod:`aasl_gym.extra_pairs` says how the
+tracker tests and takes them). The action is a residual on that
 scripted command, as in the other patrol ids, and the observation, reward and metrics are theirs (the metrics count
 from the tracker's estimate, so from after detection). The observation does not say which pod is paired or
 whether the attack was heard; a policy sees it through the estimate once the tracker runs. The robot is kept
@@ -34,11 +35,11 @@ import numpy as np
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.estimator import SourceTracker, TrackerOutput
+from aasl_gym.extra_pairs import Frame
 from aasl_gym.facility import loop_radius, pod_hydrophones
 from aasl_gym.measurement_models import received_snr
 from aasl_gym.motion import SourceState, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
-from aasl_gym.sensors import Sensor, make_sensor
 
 
 def hydrophone_snr_db(config: EnvConfig, source: np.ndarray, hydrophones: np.ndarray) -> np.ndarray:
@@ -71,12 +72,15 @@ class FacilityEnv(AASLEnv):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         # Unpaired again before the base class resets the tracker and its prior's information.
         self.tracker, self.pod, self.detection_time = self.unpaired_tracker, -1, math.inf
-        self.extra_sensors: dict[int, Sensor] = {}  # pod -> the sensor of its extra pair with the robot
-        self.extra_frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # this step's
+        self.extra_pods: set[int] = set()  # the other pods that have heard the source
+        self.extra_frames: list[Frame] = []  # this step's
         self.extra_used = 0
         self.fixed = np.asarray(self.config.world.fixed_position, dtype=float)
         self.patrol_geometry = PatrolGeometry.from_config(self.config)
         observation, info = super().reset(seed=seed, options=options)
+        # The extra pairs draw their noise from a stream of their own: the main pair's, the navigation's and
+        # the tracker's draws are the same with and without them (a paired comparison on each seed).
+        self.extra_rng = self.np_random.spawn(1)[0]  # spawned from its seed: no draw from it
         return observation, info | self._facility_info()
 
     def _sample_source(self, rng: np.random.Generator) -> SourceState:
@@ -115,38 +119,35 @@ class FacilityEnv(AASLEnv):
         self._report_navigation()
         return np.full(2, np.nan)
 
-    def _measure_extra_pairs(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """[RD, RRD], hydrophone and acoustic R of the robot's pair with every other pod that hears the
-        source; NaN for a pod that heard it before and no longer does (a gap in its track)."""
-        cfg, frames = self.config, []
-        snr_db = hydrophone_snr_db(cfg, self.source.position, self.hydrophones)
-        heard = snr_db >= cfg.facility.detection_snr_db
-        for pod in map(int, np.flatnonzero(heard)):
-            if pod == self.pod:
-                continue
-            if pod not in self.extra_sensors:
-                self.extra_sensors[pod] = make_sensor(cfg)
-                self.extra_sensors[pod].reset(self.np_random)
-            sensor = self.extra_sensors[pod]
-            z = sensor.measure(
-                self.np_random,
-                self._time,
-                self.source.position,
-                self.source.velocity,
-                self.receiver_position,
-                self.receiver_velocity,
-                self.hydrophones[pod],
-                cfg.source.range_rate_bias,
-            )
-            frames.append((z, self.hydrophones[pod], sensor.covariance()))
-        lost = [pod for pod in self.extra_sensors if not heard[pod]]
-        frames += [(np.full(2, np.nan), self.hydrophones[pod], np.eye(2)) for pod in lost]
+    def _measure_extra_pairs(self) -> list[Frame]:
+        """The frame's extra pairs (:meth:`~aasl_gym.sensors.Sensor.measure_pairs`): the robot's hydrophone
+        with every other pod's that hears the source, and NaN for a pod that heard it before and no
+        longer does (a gap in its track)."""
+        cfg = self.config
+        heard = hydrophone_snr_db(cfg, self.source.position, self.hydrophones) >= cfg.facility.detection_snr_db
+        self.extra_pods |= {int(pod) for pod in np.flatnonzero(heard)} - {self.pod}
+        hearing = {pod: self.hydrophones[pod] for pod in sorted(self.extra_pods) if heard[pod]}
+        measured = self.sensor.measure_pairs(
+            self.extra_rng,
+            self._time,
+            self.source.position,
+            self.source.velocity,
+            self.receiver_position,
+            self.receiver_velocity,
+            hearing,
+            cfg.source.range_rate_bias,
+        )
+        frames = []
+        for pod in sorted(self.extra_pods):
+            z, noise = measured.get(pod, (np.full(2, np.nan), np.eye(2)))
+            frames.append((z, self.hydrophones[pod], noise))
         return frames
 
     def _track(self, z: np.ndarray) -> TrackerOutput:
         out = super()._track(z)
         frames, self.extra_frames = self.extra_frames, []
-        self.extra_used = self.tracker.assimilate_pairs(frames, self.reported_position, self.reported_velocity)
+        shared = self.sensor.shared_covariance()
+        self.extra_used = self.tracker.assimilate_pairs(frames, self.reported_position, self.reported_velocity, shared)
         return out
 
     def _pair_with(self, pod: int) -> None:

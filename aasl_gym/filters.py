@@ -23,6 +23,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy import linalg
 
 from aasl_gym.config import FilterConfig
 from aasl_gym.motion import coordinated_turn_displacement
@@ -449,6 +450,19 @@ def merwe_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> 
     return np.concatenate([x[None, :], x + root, x - root])
 
 
+def whole_periods(
+    measured: float, sigma_values: np.ndarray, ukf: UnscentedKalmanFilter, noise_variance: float, period: float
+) -> float | None:
+    """Whole periods between a value measured modulo ``period`` (unwrapped from an unknown start) and
+    ``ukf``'s unscented prediction of it (the value at each sigma point, ``sigma_values``, plus
+    ``noise_variance``); None where that prediction's sd exceeds a quarter period, too wide to tell."""
+    mean = ukf.Wm @ sigma_values
+    variance = ukf.Wc @ (sigma_values - mean) ** 2 + noise_variance
+    if variance > (0.25 * period) ** 2:
+        return None
+    return float(np.round((measured - mean) / period))
+
+
 class UnscentedKalmanFilter:
     """UKF with Merwe scaled sigma points, vectorized over the sigma points.
 
@@ -510,3 +524,19 @@ class UnscentedKalmanFilter:
         self.P = 0.5 * (self.P + self.P.T)
         self.nis = float(self.y @ s_inv @ self.y)
         self.log_likelihood = -0.5 * (self.nis + np.log(det) + 2 * np.log(2 * np.pi))
+
+    def update_stacked(self, innovation: np.ndarray, deviations: np.ndarray, R: np.ndarray) -> float:
+        """Update with a measurement of any size m, given its innovation (m,), the predicted measurement at
+        the sigma points ``sigmas_f`` less its mean (2n+1, m) and its noise covariance R (m, m); returns the
+        NIS. Leaves ``y``, ``S``, ``nis`` and ``log_likelihood`` (:meth:`update`'s) as they were. Raises
+        ``numpy.linalg.LinAlgError`` when the innovation covariance is not positive definite."""
+        if self.sigmas_f is None:
+            raise RuntimeError("predict() must run before update_stacked()")
+        covariance = (deviations.T * self.Wc) @ deviations + R
+        factor = np.linalg.cholesky(covariance)
+        cross = ((self.sigmas_f - self.x).T * self.Wc) @ deviations
+        gain = linalg.cho_solve((factor, True), cross.T).T
+        self.x = self.x + gain @ innovation
+        self.P = self.P - gain @ covariance @ gain.T
+        self.P = 0.5 * (self.P + self.P.T)
+        return float(innovation @ linalg.cho_solve((factor, True), innovation))

@@ -25,14 +25,14 @@ for a tone, each channel's CFAR statistic (:func:`detection_statistic`) reaches 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import integrate, signal
 
 from aasl_gym import geometry
 from aasl_gym.bandpass import band_gain, noise_bandwidth
-from aasl_gym.synthesis import Channel, FrameFault, Waveform, path_sources, synthesize
+from aasl_gym.synthesis import Channel, FrameFault, Waveform, path_sources, receiver_channels, synthesize
 
 
 def saturated(samples: np.ndarray, share: float = 0.01) -> bool:
@@ -292,6 +292,7 @@ class FrontEnd:
     max_delay: float = 0.03  # s, coarse lag search (baseline / c with margin)
     detection_snr_db: float = 13.0  # dB, the tone detector's threshold (:func:`detection_statistic`)
     waveform: Waveform | None = None
+    channel: Channel | None = None  # the latest frame synthesized
 
     def reset(self, rng: np.random.Generator) -> None:
         """A new episode: a fresh random phase (and hop sequence)."""
@@ -334,9 +335,43 @@ class FrontEnd:
             rng,
             fault,
         )
+        self.channel = channel  # the latest frame, whose robot channel :meth:`measure_pairs` shares
+        return self.process(channel)
+
+    def process(self, channel: Channel) -> tuple[FrameEstimate, np.ndarray, bool]:
+        """One synthesized frame's estimate, its channels' measured SNRs (linear) and whether the source
+        was heard in it (:meth:`heard`)."""
+        assert self.waveform is not None  # the frame was synthesized with it
         envelope = envelopes(channel, self.waveform, self.envelope_rate, self.guard)
         result = estimate(envelope, self.waveform, self.sound_speed, self.max_delay, self.windows, self.noise_level_db)
         return result, self.snr(envelope), self.heard(channel, envelope)
+
+    def measure_pairs(
+        self, rng: np.random.Generator, time: float, source, source_velocity, hydrophones: np.ndarray
+    ) -> list[tuple[FrameEstimate, np.ndarray, bool]]:
+        """The latest frame (:meth:`measure`'s, centred on ``time``) at each further fixed hydrophone (K, 3;
+        m), each paired with that frame's robot channel (one recording: its noise is every pair's), as
+        :meth:`process` gives them."""
+        mobile = self.channel
+        assert self.waveform is not None and mobile is not None  # measure() synthesized the robot's frame
+        paths = path_sources(
+            source, source_velocity, self.reflections, self.water_depth, self.surface_reflection, self.bed_reflection
+        )
+        _, channels = receiver_channels(
+            self.waveform,
+            time,
+            self.frame + 2 * self.guard,
+            mobile.rate,
+            self.path == "fast",
+            paths,
+            np.asarray(hydrophones, dtype=float),
+            np.zeros((len(hydrophones), 3)),
+            self.sound_speed,
+            self.source_level_db,
+            self.noise_level_db,
+            rng,
+        )
+        return [self.process(replace(mobile, fixed=fixed)) for fixed in channels]
 
     def heard(self, channel: Channel, envelope: Channel) -> bool:
         """Whether the frame carries the source on both channels: neither is clipped (:func:`saturated`:

@@ -330,13 +330,24 @@ def signal_noise_sd(config: EnvConfig, snr_mobile, snr_fixed) -> np.ndarray:
     (linear): the Cramer-Rao sd of :func:`~aasl_gym.frontend.tone_measurement_sd` at the carrier's
     wavelength over the receiver band, times ``signal.sd_inflation``, floored at ``signal.min_*_sd``
     (see :class:`~aasl_gym.sensors.SignalSensor`)."""
-    source, sig = config.source, config.signal
+    sig = config.signal
+    sd = _inflated_tone_sd(config, snr_mobile, snr_fixed)
+    return np.maximum(sd, [sig.min_range_difference_sd, sig.min_range_rate_difference_sd])
+
+
+def _inflated_tone_sd(config: EnvConfig, snr_mobile, snr_fixed) -> np.ndarray:
+    source = config.source
     band = receiver_band(source.waveform, source.frequency)
     wavelength = config.world.sound_speed / carrier_frequency(source.waveform, source.frequency)
-    sd = np.stack(
-        tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], sig.frame_duration), axis=-1
-    )
-    return np.maximum(sig.sd_inflation * sd, [sig.min_range_difference_sd, sig.min_range_rate_difference_sd])
+    sd = tone_measurement_sd(snr_mobile, snr_fixed, wavelength, band[1] - band[0], config.signal.frame_duration)
+    return config.signal.sd_inflation * np.stack(sd, axis=-1)
+
+
+def robot_channel_sd(config: EnvConfig, snr_mobile) -> np.ndarray:
+    """The share of :func:`signal_noise_sd` that the robot's channel alone makes (m, m/s; (..., 2)): its
+    term of the Cramer-Rao variance, times ``signal.sd_inflation``, without floors. Every pair of one
+    frame shares this error (they pair their fixed channels with the same robot recording)."""
+    return _inflated_tone_sd(config, snr_mobile, np.inf)
 
 
 def model_snr(config: EnvConfig, source_position: np.ndarray, receiver_position: np.ndarray) -> np.ndarray:

@@ -7,6 +7,10 @@ For a tone the RD is known only modulo one wavelength: the first value is wrappe
 previous unwrapped value (:class:`~aasl_gym.frontend.Unwrapper`), so the track carries a whole-period
 offset fixed at the episode's start; the estimator holds it in its range-difference bias ``b_p``.
 A lost frame (dropped by the ``fault`` option, or in signal mode one the detector does not hear) is NaN.
+
+A facility's extra pairs (:meth:`Sensor.measure_pairs`) pair further fixed hydrophones with the robot's
+hydrophone in the same frame. In signal mode they share the robot's recording, so their errors are
+correlated through its channel (:meth:`Sensor.shared_covariance`); in geometric mode each is drawn alone.
 """
 
 from __future__ import annotations
@@ -17,7 +21,14 @@ import numpy as np
 
 from aasl_gym.config import EnvConfig
 from aasl_gym.frontend import FrontEnd, Unwrapper
-from aasl_gym.measurement_models import Propagation, model_snr, multipath_measurement, signal_noise_sd, tone_period
+from aasl_gym.measurement_models import (
+    Propagation,
+    model_snr,
+    multipath_measurement,
+    robot_channel_sd,
+    signal_noise_sd,
+    tone_period,
+)
 from aasl_gym.synthesis import FrameFault
 
 
@@ -43,9 +54,28 @@ class Sensor(Protocol):
         """z (m, m/s) of the frame at ``time`` (s) from the true source and receiver states (m, m/s), with
         ``range_rate_bias`` (m/s, a clock-rate offset) added to RRD; NaN for a lost frame."""
 
+    def measure_pairs(
+        self,
+        rng: np.random.Generator,
+        time: float,
+        source_position,
+        source_velocity,
+        mobile,
+        mobile_velocity,
+        hydrophones: dict[int, np.ndarray],
+        range_rate_bias: float = 0.0,
+    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """After :meth:`measure`, the same frame's further pairs: the robot's hydrophone with each fixed one
+        in ``hydrophones`` (a key, e.g. a pod's index -> its position (3,); m), as z and R_ac by key, each RD
+        unwrapped on a track of its own; z is NaN where a pair's frame is lost."""
+
     def covariance(self) -> np.ndarray:
         """R_ac (2x2; m^2, m^2/s^2): the acoustic noise covariance the filter is told for the latest frame
         (the navigation term of R_eff is added by whoever uses it)."""
+
+    def shared_covariance(self) -> np.ndarray:
+        """The part of R_ac (2x2) that every pair of the latest frame shares (:meth:`measure_pairs`): the
+        error of the robot's own channel."""
 
     def snr(self) -> np.ndarray:
         """In-band SNR (linear) of the latest frame at the (mobile, fixed) hydrophones; NaN where unknown."""
@@ -69,12 +99,14 @@ class GeometricSensor:
         self.propagation = Propagation.from_config(config.world, config.source.frequency)
         self.model = config.world.reflection_model if config.world.reflections else "none"
         self.unwrapper = Unwrapper(period)
+        self.pair_unwrappers = PairUnwrappers(period)
         self.fault = config.fault
         self._covariance = np.diag(self.sd**2)
         self._snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
         self.unwrapper.reset()
+        self.pair_unwrappers.clear()
 
     def measure(
         self,
@@ -97,8 +129,35 @@ class GeometricSensor:
             return np.full(2, np.nan)
         return np.array([self.unwrapper(noisy[0]), noisy[1] + range_rate_bias])
 
+    def measure_pairs(
+        self,
+        rng: np.random.Generator,
+        time: float,
+        source_position,
+        source_velocity,
+        mobile,
+        mobile_velocity,
+        hydrophones: dict[int, np.ndarray],
+        range_rate_bias: float = 0.0,
+    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Each further pair's z with noise of its own (this mode has no channels to share: the pairs'
+        errors are independent, which a shared robot recording would not make them); lost with the frame."""
+        pairs = {}
+        for key, fixed in hydrophones.items():
+            truth = multipath_measurement(
+                self.model, self.propagation, source_position, source_velocity, mobile, mobile_velocity, fixed
+            )
+            noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
+            lost = self.fault.active(time)
+            z = np.full(2, np.nan) if lost else self.pair_unwrappers.measurement(key, noisy, range_rate_bias)
+            pairs[key] = (z, self._covariance)
+        return pairs
+
     def covariance(self) -> np.ndarray:
         return self._covariance
+
+    def shared_covariance(self) -> np.ndarray:
+        return np.zeros((2, 2))  # each pair's noise is drawn on its own
 
     def snr(self) -> np.ndarray:
         return self._snr
@@ -147,13 +206,16 @@ class SignalSensor:
             detection_snr_db=sig.detection_snr_db,
         )
         self.unwrapper = Unwrapper(period)
+        self.pair_unwrappers = PairUnwrappers(period)
         self.fault = config.fault
         self._snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
         self._covariance = np.diag([sig.min_range_difference_sd**2, sig.min_range_rate_difference_sd**2])
+        self.dropped = False  # the latest frame was dropped (the fault option)
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
         """A new episode; with ``rng``, a fresh random waveform phase (else drawn at the first frame)."""
         self.unwrapper.reset()
+        self.pair_unwrappers.clear()
         self.front_end.waveform = None
         if rng is not None:
             self.front_end.reset(rng)
@@ -177,18 +239,66 @@ class SignalSensor:
             rng, time, source_position, source_velocity, mobile, mobile_velocity, fixed, corrupt
         )
         self._covariance = np.diag(signal_noise_sd(self.config, self._snr[0], self._snr[1]) ** 2)
-        if fault and fault.kind == "dropped":
+        self.dropped = bool(fault and fault.kind == "dropped")
+        if self.dropped:
             self._snr = np.full(2, np.nan)
             return np.full(2, np.nan)
         if not heard:
             return np.full(2, np.nan)
         return np.array([self.unwrapper(result.range_difference), result.range_rate_difference + range_rate_bias])
 
+    def measure_pairs(
+        self,
+        rng: np.random.Generator,
+        time: float,
+        source_position,
+        source_velocity,
+        mobile,
+        mobile_velocity,
+        hydrophones: dict[int, np.ndarray],
+        range_rate_bias: float = 0.0,
+    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Each further hydrophone's channel of the latest frame, with noise of its own, paired with that
+        frame's robot channel (:meth:`~aasl_gym.frontend.FrontEnd.measure_pairs`: the robot's noise, and a
+        fault on its channel, are every pair's); R_ac at each pair's measured SNRs. All are lost with a
+        dropped frame; one is lost where the detector does not hear its pair."""
+        keys = list(hydrophones)
+        frames = self.front_end.measure_pairs(
+            rng, time, source_position, source_velocity, np.array([hydrophones[key] for key in keys]).reshape(-1, 3)
+        )
+        pairs = {}
+        for key, (result, snr, heard) in zip(keys, frames):
+            measured = np.array([result.range_difference, result.range_rate_difference])
+            lost = self.dropped or not heard
+            z = np.full(2, np.nan) if lost else self.pair_unwrappers.measurement(key, measured, range_rate_bias)
+            pairs[key] = (z, np.diag(signal_noise_sd(self.config, *snr) ** 2))
+        return pairs
+
     def covariance(self) -> np.ndarray:
         return self._covariance
 
+    def shared_covariance(self) -> np.ndarray:
+        """The robot channel's term of the Cramer-Rao variance (the fixed channel's SNR infinite), times
+        ``signal.sd_inflation`` squared: at most any pair's R_ac, floors and all."""
+        if not np.isfinite(self._snr[0]):
+            return np.zeros((2, 2))
+        return np.diag(robot_channel_sd(self.config, self._snr[0]) ** 2)
+
     def snr(self) -> np.ndarray:
         return self._snr
+
+
+class PairUnwrappers(dict):
+    """One :class:`~aasl_gym.frontend.Unwrapper` per further pair, by key, made at its first frame."""
+
+    def __init__(self, period: float | None):
+        super().__init__()
+        self.period = period
+
+    def measurement(self, key: int, measured: np.ndarray, range_rate_bias: float) -> np.ndarray:
+        """z of pair ``key`` from its [RD, RRD] ``measured``: the RD unwrapped on its track, the bias added."""
+        unwrapper = self.setdefault(key, Unwrapper(self.period))
+        return np.array([unwrapper(measured[0]), measured[1] + range_rate_bias])
 
 
 SENSORS: dict[str, type] = {"geometric": GeometricSensor, "signal": SignalSensor}  # by ``measurement.mode``

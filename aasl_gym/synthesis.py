@@ -252,25 +252,54 @@ def synthesize(
     """Both channels of one frame: real at ``rate`` Hz (the hardware path) or, with ``baseband``, the
     complex envelope about the waveform's carrier at ``rate`` Hz (the fast path). ``noise_level_db``
     None gives noise-free channels; ``fault`` corrupts some of them."""
+    corrupted = np.asarray(fault.channels if fault else (False, False))
+    times, channels = receiver_channels(
+        waveform,
+        centre,
+        duration,
+        rate,
+        baseband,
+        paths,
+        np.array([mobile, fixed], dtype=float),
+        np.array([mobile_velocity, np.zeros(3)], dtype=float),
+        sound_speed,
+        source_level_db,
+        noise_level_db,
+        rng,
+        silent=corrupted if fault and fault.kind == "silent" else None,
+    )
+    if fault and fault.kind == "clipped":
+        for row in np.flatnonzero(corrupted):
+            channels[row] = clipped(channels[row], fault.clip_level)
+    return Channel(times, channels[0], channels[1], rate, waveform.carrier if baseband else 0.0)
+
+
+def receiver_channels(
+    waveform: Waveform,
+    centre: float,
+    duration: float,
+    rate: float,
+    baseband: bool,
+    paths,
+    receivers: np.ndarray,
+    velocities: np.ndarray,
+    sound_speed: float,
+    source_level_db: float,
+    noise_level_db: float | None,
+    rng: np.random.Generator | None,
+    silent: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The sample times (N,; s) and channels (R, N) of one frame at ``receivers`` (R, 3; m) moving at
+    ``velocities`` (R, 3; m/s), as :func:`synthesize` makes them, each with noise of its own; a ``silent``
+    channel (R,; bool) carries the noise alone."""
     times = frame_times(centre, duration, rate)
     carrier = waveform.carrier if baseband else 0.0
-    receivers = np.array([mobile, fixed], dtype=float)
-    velocities = np.array([mobile_velocity, np.zeros(3)], dtype=float)
+    amplitude = peak_amplitude(source_level_db)
     channels = received_pressure(
-        waveform,
-        times,
-        centre,
-        paths,
-        receivers,
-        velocities,
-        sound_speed,
-        peak_amplitude(source_level_db),
-        baseband,
-        carrier,
+        waveform, times, centre, paths, receivers, velocities, sound_speed, amplitude, baseband, carrier
     )
-    corrupted = np.asarray(fault.channels if fault else (False, False))
-    if fault and fault.kind == "silent":
-        channels[corrupted] = 0.0
+    if silent is not None:
+        channels[silent] = 0.0
     if noise_level_db is not None:
         assert rng is not None, "noise needs an rng"
         sd = noise_sd(noise_level_db, waveform.band, rate, complex_samples=baseband)
@@ -278,16 +307,13 @@ def synthesize(
             # White noise's DFT bins are independent complex Gaussians: draw only the bins the band-pass
             # lets through (power gain above 1e-12; the rest it would remove anyway).
             bins = _noise_bins(len(times), rate, carrier, waveform.band)
-            draws = rng.normal(0.0, sd * np.sqrt(len(times)), (2, 2, len(bins)))  # (real / imaginary, channel, bin)
+            draws = rng.normal(0.0, sd * np.sqrt(len(times)), (2, len(channels), len(bins)))  # (re / im, channel, bin)
             spectrum = np.zeros(channels.shape, dtype=complex)
             spectrum[:, bins] = draws[0] + 1j * draws[1]
             channels += np.fft.ifft(spectrum, axis=-1)
         else:
             channels += rng.normal(0.0, sd, channels.shape)
-    if fault and fault.kind == "clipped":
-        for row in np.flatnonzero(corrupted):
-            channels[row] = clipped(channels[row], fault.clip_level)
-    return Channel(times, channels[0], channels[1], rate, carrier)
+    return times, channels
 
 
 @functools.lru_cache(maxsize=16)

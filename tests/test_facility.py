@@ -126,3 +126,15 @@ def test_an_extra_pair_a_period_off_is_dropped_and_placed_again():
     assert runs[True][0][2] is None and runs[True][1][2].offset == right
     assert max(used[: env.tracker.nis_length]) < max(used) == used[-1]
     assert np.allclose([e for e, _, _ in runs[True]], [e for e, _, _ in runs[False]], atol=0.05)
+
+
+def test_extra_pairs_draw_from_their_own_stream():
+    """The extra pairs' noise comes from a stream of their own: the main pair's frames, the robot's path and
+    the source are the same with and without them on one seed (the study's paired comparison)."""
+    runs = {}
+    for pairs in ("loudest", "all"):
+        env = _free_field_facility(pairs, duration=30.0)
+        env.reset(seed=3)
+        steps = [env.step(np.zeros(3))[4] for _ in range(env.max_steps)]
+        runs[pairs] = np.array([np.r_[info["measurement"], info["receiver_position"]] for info in steps])
+    np.testing.assert_array_equal(runs["loudest"], runs["all"])

@@ -7,7 +7,7 @@ from scipy.integrate import quad_vec, solve_ivp
 from scipy.stats import multivariate_normal
 
 from aasl_gym.config import FilterConfig
-from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter
+from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter, merwe_sigma_points
 from aasl_gym.measurement_models import direct_measurement
 
 FIXED = np.array([0.0, 0, -0.96])
@@ -246,3 +246,34 @@ def test_a_speed_limited_ca_moves_as_the_world_source():
     back = model.source_trajectory(ukf.x[None], 0.2 * np.arange(-(len(path) - 1), 1))[0]
     np.testing.assert_allclose(back[:, 0:3], path[:, 0:3], atol=3e-3)
     np.testing.assert_allclose(back[:, 3:6], path[:, 3:6], atol=1e-4)
+
+
+def test_a_stacked_update_conditioned_on_the_first_pair_is_the_joint_kalman_update():
+    """Linear measurements of three pairs whose errors are correlated (a shared term and a common
+    navigation error): the UKF's update with pair 0, then :meth:`update_stacked` with the rest conditioned
+    on pair 0 (:func:`~aasl_gym.extra_pairs.conditioned_on_first`), equals the linear Kalman filter's one
+    update with all six rows and their joint covariance (the UKF is exact for linear h)."""
+    from aasl_gym.extra_pairs import conditioned_on_first, joint_noise
+
+    model = MOTION_MODELS["cv"](FilterConfig(motion_model="cv"))
+    rng = np.random.default_rng(4)
+    H = rng.normal(size=(6, model.dim))
+    noises = [np.diag(rng.uniform(0.5, 2.0, 2)) for _ in range(3)]
+    shared, receiver = np.diag([0.3, 0.2]), rng.normal(size=(6, 6))
+    N = joint_noise(noises, shared, receiver, (0.4, 0.1))
+    x0, p0 = rng.normal(size=model.dim), np.diag(rng.uniform(0.5, 2.0, model.dim))
+    z = rng.normal(size=6)
+    gain = p0 @ H.T @ np.linalg.inv(H @ p0 @ H.T + N)
+    x_joint, p_joint = x0 + gain @ (z - H @ x0), p0 - gain @ H @ p0
+
+    ukf = UnscentedKalmanFilter(model)
+    ukf.initialize(x0, p0)
+    ukf.sigmas_f = merwe_sigma_points(x0, p0, ukf.spread)
+    ukf.update(z[:2], N[:2, :2], lambda sigmas: sigmas @ H[:2].T)
+    ukf.sigmas_f = merwe_sigma_points(ukf.x, ukf.P, ukf.spread)
+    values = ukf.sigmas_f @ H.T
+    mean = ukf.Wm @ values
+    innovation, deviations, noise = conditioned_on_first(z - mean, values - mean, N)
+    ukf.update_stacked(innovation, deviations, noise)
+    np.testing.assert_allclose(ukf.x, x_joint, atol=1e-10)
+    np.testing.assert_allclose(ukf.P, p_joint, atol=1e-10)

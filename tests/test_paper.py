@@ -208,8 +208,11 @@ def test_a_tiny_facility_study_pairs_each_trial_with_a_pod(tmp_path):
     short.write_text("episode:\n  duration: 8.0\nfacility:\n  onset_range: [1.0, 3.0]\n")
     assert paper.main(["facility", "--trials", "1", "--config", str(short), "--no-plots", "--out", str(tmp_path)]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
-    assert [row["motion"] for row in results["trials"]] == ["static", "cv", "ctrv"]
+    cells = [(row["motion"], row["variant"]) for row in results["trials"]]
+    assert cells == [(m, v) for m in ("static", "cv", "ctrv") for v in ("loudest pod", "every pod that hears")]
     for row in results["trials"]:
         assert 1.0 <= row["detection_time"] <= 3.2 and 0 <= row["pod"] < 8 and 0 <= row["source_pod"] < 8
+    for loudest, every in zip(results["trials"][::2], results["trials"][1::2]):  # one source, one detection
+        assert (loudest["detection_time"], loudest["pod"]) == (every["detection_time"], every["pod"])
     report = (tmp_path / "report.md").read_text()
-    assert "| source | trials | heard | paired with the attacked pod | detection (s): median |" in report
+    assert "| source | pairs | trials | heard | paired with the attacked pod | detection (s): median |" in report

@@ -54,7 +54,7 @@ class EpisodeLog:
         expected = self.header["config"]
         if not _extends(expected, written):
             keys = set(written) | set(expected)
-            sections = sorted(k for k in keys if k not in expected or not _extends(expected[k], written.get(k)))
+            sections = sorted(k for k in keys if k not in expected or not _extends(expected[k], written.get(k), k))
             raise LogMismatch(f"{self.path} was written with another config (sections {sections} differ)")
         done = {}
         for line in lines[1:]:
