@@ -93,7 +93,7 @@ from scipy import stats
 
 from aasl_gym import geometry
 from aasl_gym.config import EnvConfig
-from aasl_gym.extra_pairs import ExtraPairs, Frame
+from aasl_gym.extra_pairs import ExtraPairs, PairFrame
 from aasl_gym.filters import (
     UnscentedKalmanFilter,
     make_motion_model,
@@ -280,7 +280,7 @@ class SourceTracker:
         self.pool = np.zeros((0, self.model.dim))  # its fine candidates, refitted at each scheduled re-seed
         self.pool_time = np.nan  # s, when the pool's states are given
         self.extra_pairs.reset()
-        self.main_frame: tuple[np.ndarray, np.ndarray] | None = None  # z and R_ac the bank last took
+        self.main_measurement: PairFrame | None = None  # this step's z and R_ac, which every hypothesis took
 
     def _sigma_measurements(
         self,
@@ -834,7 +834,7 @@ class SourceTracker:
         sigma_z, extra = self._sigma_measurements(sigmas, position_sd, ~np.array(unresolved), mobile, mobile_velocity)
         if self.gap:
             z = self._reanchor(z, predicted[0].ukf, sigma_z[0], noise + extra[0])
-        self.main_frame = (z, noise)
+        self.main_measurement = PairFrame(z, noise, None)
         kept = []
         for hypothesis, predicted_z, extra_noise in zip(predicted, sigma_z, extra):
             ukf = hypothesis.ukf
@@ -857,20 +857,20 @@ class SourceTracker:
         self.bank = kept
 
     def assimilate_pairs(
-        self, frames: Sequence[Frame], mobile: np.ndarray, mobile_velocity: np.ndarray, shared: np.ndarray
+        self, frames: Sequence[PairFrame], mobile: np.ndarray, mobile_velocity: np.ndarray, shared: np.ndarray
     ) -> int:
-        """After :meth:`step`, update the running hypotheses with extra pairs' frames of the same step
-        (measurement [RD, RRD], the pair's fixed hydrophone (3,), acoustic R; NaN where a pair did not
-        hear), as :class:`~aasl_gym.extra_pairs.ExtraPairs` tests, places and conditions them on this
-        step's main frame; ``shared`` is the acoustic covariance every pair of the frame shares (the
-        robot's channel). Returns how many pairs updated a hypothesis. Each pair's h is the main pair's
-        model with its hydrophone, with b_v (the robot's clock against the facility's one) but not b_p."""
+        """After :meth:`step`, update the running hypotheses with extra pairs' frames of the same step (NaN
+        where a pair did not hear), as :class:`~aasl_gym.extra_pairs.ExtraPairs` tests, places and
+        conditions them on the main pair's frame of the step; ``shared`` is the acoustic covariance every
+        pair of the frame shares (the robot's channel). Returns how many pairs updated the likeliest
+        hypothesis. Each pair's h is the main pair's model with its hydrophone, with b_v (the robot's
+        clock against the facility's one clock) but not b_p."""
         if not self.initialized:
             return 0
 
         def model(hypothesis: Hypothesis, sigmas: np.ndarray, hydrophone: np.ndarray | None):
             if self.ripple and not hypothesis.resolved:
-                return None  # its sigma points span the ripple: the main pair's spread noise is its alone
+                return None  # too uncertain for the ripple: it sees the main pair's model coarsely, as noise
             fixed = self.fixed if hydrophone is None else hydrophone
             resolved = np.array([True])
             z, _, jacobian = self._sigma_model(sigmas[None], np.zeros(1), resolved, mobile, mobile_velocity, fixed)
@@ -879,7 +879,7 @@ class SourceTracker:
                 z[0, :, 0] += sigmas[:, -2]
             return z[0], jacobian[0]
 
-        return self.extra_pairs.assimilate(self.bank, frames, model, self.main_frame, shared)
+        return self.extra_pairs.assimilate(self.bank, frames, model, self.main_measurement, shared)
 
     def _reanchor(
         self, z: np.ndarray, ukf: UnscentedKalmanFilter, sigma_z: np.ndarray, noise: np.ndarray
@@ -986,7 +986,7 @@ class SourceTracker:
         ``noise_covariance`` is this measurement's acoustic R (the tracker's fixed one if None); each
         hypothesis adds the navigation term at its own estimate."""
         z = np.asarray(z, dtype=float)
-        self.main_frame = None
+        self.main_measurement = None
         if not np.all(np.isfinite(z)):
             return self._coast(time, rng)
         if self.gap and not self.initialized:
@@ -995,6 +995,7 @@ class SourceTracker:
         z = z + [self.range_offset, 0.0]
         noise = self.noise_covariance if noise_covariance is None else np.asarray(noise_covariance, dtype=float)
         self.history.append((time, z, np.asarray(mobile, dtype=float), np.asarray(mobile_velocity, dtype=float), noise))
+        self.main_measurement = PairFrame(z, noise, None)  # a start's window holds it too
         if np.isnan(self.first_time):
             self.first_time = time
         nan2 = np.full(2, np.nan)

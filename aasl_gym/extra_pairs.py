@@ -32,10 +32,11 @@ was confidently wrong early on placed them wrongly, and every later update pulle
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, NamedTuple
 
 import numpy as np
 from scipy import linalg, stats
@@ -46,13 +47,28 @@ from aasl_gym.measurement_models import receiver_noise
 if TYPE_CHECKING:
     from aasl_gym.estimator import Hypothesis
 
-GATE_QUANTILE = 0.999  # chi-square quantile of an extra-pair update's NIS beyond which it is undone
+GATE_QUANTILE = (
+    0.999  # chi-square quantile of an extra pair's NIS, and of the stacked update's, beyond which it is refused
+)
 
 # A pair's [RD, RRD] at a hypothesis's sigma points (2n+1, n) -> (2n+1, 2), and its receiver Jacobian at the
 # mean (2, 6): given the hypothesis, the sigma points and the pair's fixed hydrophone (3,), or None for the
 # main pair (with b_p). None for a hypothesis that cannot take extra pairs (one yet to resolve the ripple).
 PairModel = Callable[["Hypothesis", np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray] | None]
-Frame = tuple[np.ndarray, np.ndarray, np.ndarray]  # an extra pair's [RD, RRD], hydrophone (3,) and acoustic R
+
+
+class PairFrame(NamedTuple):
+    """One pair's measurement in one frame."""
+
+    z: np.ndarray  # [RD, RRD] (m, m/s); NaN where the pair did not hear
+    noise: np.ndarray  # its acoustic R (2, 2)
+    hydrophone: np.ndarray | None  # the pair's fixed hydrophone (3,; m); None: the tracker's main pair
+
+
+@functools.cache
+def gate(dof: int) -> float:
+    """The NIS of ``dof`` degrees of freedom beyond which an extra pair's update is refused."""
+    return float(stats.chi2.ppf(GATE_QUANTILE, dof))
 
 
 @dataclass
@@ -85,15 +101,15 @@ class ExtraPairs:
     def assimilate(
         self,
         bank: Sequence[Hypothesis],
-        frames: Sequence[Frame],
+        frames: Sequence[PairFrame],
         model: PairModel,
-        main: tuple[np.ndarray, np.ndarray] | None,
+        main: PairFrame | None,
         shared: np.ndarray,
     ) -> int:
         """Test this step's extra-pair ``frames`` (a NaN measurement is a gap) and assimilate the confirmed
-        ones into ``bank``, the likeliest hypothesis first, given the main pair's frame this step (its z and
-        acoustic R, None if it had none) and the acoustic covariance every pair of the frame shares
-        (``shared``, 2 x 2); returns how many pairs updated a hypothesis."""
+        ones into ``bank``, the likeliest hypothesis first, given the main pair's frame that every
+        hypothesis has taken (None if none) and the acoustic covariance every pair of the frame shares
+        (``shared``, 2 x 2); returns how many pairs updated the likeliest hypothesis."""
         if not bank:
             return 0
         if bank[0].ukf is not self.leader:
@@ -101,45 +117,47 @@ class ExtraPairs:
             for track in self.tracks.values():
                 track.reanchor = "leader"
         confirmed = []
-        for z, hydrophone, noise in frames:
-            key = tuple(float(v) for v in hydrophone)
-            if not np.all(np.isfinite(z)):
+        for frame in frames:
+            key = tuple(float(v) for v in frame.hydrophone)  # type: ignore[union-attr]  # an extra pair's
+            if not np.all(np.isfinite(frame.z)):
                 if key in self.tracks and self.tracks[key].reanchor != "leader":
                     self.tracks[key].reanchor = "gap"
                 continue
             try:
-                tested = self._tested(key, np.asarray(z, dtype=float), hydrophone, noise, bank[0], model)
+                tested = self._tested(key, frame, bank[0], model, main, shared)
             except np.linalg.LinAlgError:  # the leader's covariance broke: it is dropped at its next update
                 continue
             if tested is not None and tested.confirmed:
-                confirmed.append((z - np.array([tested.offset, 0.0]), hydrophone, noise))
+                confirmed.append(frame._replace(z=frame.z - np.array([tested.offset, 0.0])))
         if not confirmed:
             return 0
-        updated = [self._update(hypothesis, confirmed, model, main, shared) for hypothesis in bank]
-        return len(confirmed) if any(updated) else 0
+        taken = [self._update(hypothesis, confirmed, model, main, shared) for hypothesis in bank]
+        return taken[0]
 
     def _tested(
         self,
         key: tuple[float, ...],
-        z: np.ndarray,
-        hydrophone: np.ndarray,
-        noise: np.ndarray,
+        frame: PairFrame,
         leader: Hypothesis,
         model: PairModel,
+        main: PairFrame | None,
+        shared: np.ndarray,
     ) -> PairTrack | None:
         """The pair's track after this frame's test under the leader: placed or placed again if it can
-        be (else None), dropped (None) once its NIS window is inconsistent, confirmed once it is consistent."""
+        be (else None), dropped (None) once its NIS window is inconsistent, confirmed once it is consistent.
+        The NIS is the one the update gates on: given the main pair's frame."""
         ukf = leader.ukf
-        prediction = model(leader, merwe_sigma_points(ukf.x, ukf.P, ukf.spread), hydrophone)
-        if prediction is None:
+        sigmas = merwe_sigma_points(ukf.x, ukf.P, ukf.spread)
+        predictions = self._predictions(leader, sigmas, [frame], model, main)
+        if predictions is None:
             return None
-        predicted, jacobian = prediction
-        covariance = noise + receiver_noise(jacobian, *self.navigation_sd)
+        predicted, jacobian = predictions[-1]
         track = self.tracks.get(key)
         if track is None or track.reanchor:
             periods: float | None = 0.0
             if self.wavelength is not None:
-                periods = whole_periods(z[0], predicted[:, 0], ukf, covariance[0, 0], self.wavelength)
+                variance = frame.noise[0, 0] + receiver_noise(jacobian, *self.navigation_sd)[0, 0]
+                periods = whole_periods(frame.z[0], predicted[:, 0], ukf, variance, self.wavelength)
             if periods is None:
                 self.tracks.pop(key, None)
                 return None
@@ -147,11 +165,9 @@ class ExtraPairs:
             if track is None or (track.reanchor == "leader" and offset != track.offset):
                 track = self.tracks[key] = PairTrack(offset, deque(maxlen=self.window))
             track.offset, track.reanchor = offset, ""
-        mean = ukf.Wm @ predicted
-        deviation = predicted - mean  # as the filter's update spreads them: not wrapped
-        covariance = covariance + (deviation.T * ukf.Wc) @ deviation
-        innovation = self.residual(z - np.array([track.offset, 0.0]), mean)
-        track.nis.append(min(float(innovation @ np.linalg.solve(covariance, innovation)), self.nis_cap))
+        placed = frame._replace(z=frame.z - np.array([track.offset, 0.0]))
+        nis = self._nis(ukf, *self._stacked(ukf, predictions, [placed], main, shared))
+        track.nis.append(min(nis, self.nis_cap))
         if len(track.nis) == self.window:
             if np.mean(track.nis) > self.divergence_nis:
                 del self.tracks[key]
@@ -162,38 +178,77 @@ class ExtraPairs:
     def _update(
         self,
         hypothesis: Hypothesis,
-        confirmed: list[Frame],
+        confirmed: list[PairFrame],
         model: PairModel,
-        main: tuple[np.ndarray, np.ndarray] | None,
+        main: PairFrame | None,
         shared: np.ndarray,
-    ) -> bool:
-        """One hypothesis's joint update with the confirmed pairs' frames (their offsets taken off),
-        conditioned on the main pair's (see the module's docstring); undone if its NIS is beyond the gate
-        or its covariance breaks. Whether it stood."""
+    ) -> int:
+        """One hypothesis's stacked update with the confirmed pairs' frames (their offsets taken off) whose
+        own NIS, given the main pair's frame, is within the gate; undone if the stacked update's NIS is
+        beyond it or its covariance breaks. How many pairs it took."""
         ukf = hypothesis.ukf
         x, covariance = ukf.x.copy(), ukf.P.copy()
-        frames = ([(main[0], None, main[1])] if main is not None else []) + confirmed
         try:
             sigmas = merwe_sigma_points(ukf.x, ukf.P, ukf.spread)
-            predictions = [model(hypothesis, sigmas, hydrophone) for _, hydrophone, _ in frames]
-            if any(prediction is None for prediction in predictions):
-                return False
-            values = np.stack([prediction[0] for prediction in predictions])  # type: ignore[index]
-            jacobian = np.concatenate([prediction[1] for prediction in predictions])  # type: ignore[index]
-            means = np.einsum("s,psi->pi", ukf.Wm, values)
-            innovation = np.concatenate([self.residual(z, mean) for (z, _, _), mean in zip(frames, means)])
-            deviations = np.concatenate(list(values - means[:, None]), axis=1)  # (2n+1, 2 P)
-            noise = joint_noise([noise for _, _, noise in frames], shared, jacobian, self.navigation_sd)
-            if main is not None:
-                innovation, deviations, noise = conditioned_on_first(innovation, deviations, noise)
+            predictions = self._predictions(hypothesis, sigmas, confirmed, model, main)
+            if predictions is None:
+                return 0
+            first = 1 if main is not None else 0
+            kept = [
+                index
+                for index, frame in enumerate(confirmed)
+                if self._nis(
+                    ukf, *self._stacked(ukf, predictions[:first] + [predictions[first + index]], [frame], main, shared)
+                )
+                <= gate(2)
+            ]
+            if not kept:
+                return 0
+            taken = predictions[:first] + [predictions[first + index] for index in kept]
+            stacked = self._stacked(ukf, taken, [confirmed[index] for index in kept], main, shared)
             ukf.sigmas_f = sigmas
-            nis = ukf.update_stacked(innovation, deviations, noise)
-            stood = nis <= stats.chi2.ppf(GATE_QUANTILE, len(innovation))
+            if ukf.update_stacked(*stacked) <= gate(len(stacked[0])):
+                return len(kept)
         except np.linalg.LinAlgError:
-            stood = False
-        if not stood:
-            ukf.x, ukf.P = x, covariance
-        return stood
+            pass
+        ukf.x, ukf.P = x, covariance
+        return 0
+
+    @staticmethod
+    def _predictions(
+        hypothesis: Hypothesis, sigmas: np.ndarray, frames: list[PairFrame], model: PairModel, main: PairFrame | None
+    ) -> list[tuple[np.ndarray, np.ndarray]] | None:
+        """The model's values and receiver Jacobian for the main pair (if it has a frame), then each of
+        ``frames``, at ``sigmas``; None if the hypothesis cannot take extra pairs."""
+        pairs = ([main] if main is not None else []) + frames
+        predictions = [model(hypothesis, sigmas, frame.hydrophone) for frame in pairs]
+        return None if any(p is None for p in predictions) else predictions  # type: ignore[return-value]
+
+    def _stacked(
+        self,
+        ukf: UnscentedKalmanFilter,
+        predictions: list[tuple[np.ndarray, np.ndarray]],
+        frames: list[PairFrame],
+        main: PairFrame | None,
+        shared: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The innovation, the sigma points' deviations and the noise of ``frames`` stacked (``predictions``:
+        the main pair's first if it has a frame), given the main pair's frame (:func:`conditioned_on_first`)."""
+        pairs = ([main] if main is not None else []) + frames
+        values = np.stack([value for value, _ in predictions])  # (P, 2n+1, 2)
+        means = np.einsum("s,psi->pi", ukf.Wm, values)
+        innovation = np.concatenate([self.residual(frame.z, mean) for frame, mean in zip(pairs, means)])
+        deviations = np.concatenate(list(values - means[:, None]), axis=1)  # (2n+1, 2P), not wrapped: as update()
+        jacobian = np.concatenate([jacobian for _, jacobian in predictions])
+        noise = joint_noise([frame.noise for frame in pairs], shared, jacobian, self.navigation_sd)
+        if main is None:
+            return innovation, deviations, noise
+        return conditioned_on_first(innovation, deviations, noise)
+
+    @staticmethod
+    def _nis(ukf: UnscentedKalmanFilter, innovation: np.ndarray, deviations: np.ndarray, noise: np.ndarray) -> float:
+        covariance = (deviations.T * ukf.Wc) @ deviations + noise
+        return float(innovation @ np.linalg.solve(covariance, innovation))
 
 
 def joint_noise(
@@ -211,10 +266,10 @@ def joint_noise(
 def conditioned_on_first(
     innovation: np.ndarray, deviations: np.ndarray, noise: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pairs 1.. of a stacked update given pair 0's error (the first two rows): the innovation (2P,), the
-    sigma points' deviations (S, 2P) and the noise (2P, 2P) of z_rest - B z_0, where B = N_10 N_00^-1
-    regresses the rest's errors on pair 0's; that measurement's error is independent of pair 0's, its
-    covariance N_11 - B N_01."""
+    """Pairs 1.. of a stacked update given pair 0's error: from the stacked innovation (2P,), the sigma
+    points' deviations (S, 2P) and the noise (2P, 2P), those (2P - 2 wide) of z_rest - B z_0, where
+    B = N_10 N_00^-1 regresses the rest's errors on pair 0's (the first two rows). That measurement's error
+    is independent of pair 0's; its covariance is N_11 - B N_01."""
     regression = np.linalg.solve(noise[:2, :2], noise[:2, 2:]).T  # B, (2P - 2, 2)
     return (
         innovation[2:] - regression @ innovation[:2],

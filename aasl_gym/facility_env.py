@@ -35,7 +35,7 @@ import numpy as np
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.estimator import SourceTracker, TrackerOutput
-from aasl_gym.extra_pairs import Frame
+from aasl_gym.extra_pairs import PairFrame
 from aasl_gym.facility import loop_radius, pod_hydrophones
 from aasl_gym.measurement_models import received_snr
 from aasl_gym.motion import SourceState, sample_source, source_region
@@ -73,7 +73,7 @@ class FacilityEnv(AASLEnv):
         # Unpaired again before the base class resets the tracker and its prior's information.
         self.tracker, self.pod, self.detection_time = self.unpaired_tracker, -1, math.inf
         self.extra_pods: set[int] = set()  # the other pods that have heard the source
-        self.extra_frames: list[Frame] = []  # this step's
+        self.extra_frames: list[PairFrame] = []  # this step's
         self.extra_used = 0
         self.fixed = np.asarray(self.config.world.fixed_position, dtype=float)
         self.patrol_geometry = PatrolGeometry.from_config(self.config)
@@ -119,7 +119,7 @@ class FacilityEnv(AASLEnv):
         self._report_navigation()
         return np.full(2, np.nan)
 
-    def _measure_extra_pairs(self) -> list[Frame]:
+    def _measure_extra_pairs(self) -> list[PairFrame]:
         """The frame's extra pairs (:meth:`~aasl_gym.sensors.Sensor.measure_pairs`): the robot's hydrophone
         with every other pod's that hears the source, and NaN for a pod that heard it before and no
         longer does (a gap in its track)."""
@@ -129,7 +129,6 @@ class FacilityEnv(AASLEnv):
         hearing = {pod: self.hydrophones[pod] for pod in sorted(self.extra_pods) if heard[pod]}
         measured = self.sensor.measure_pairs(
             self.extra_rng,
-            self._time,
             self.source.position,
             self.source.velocity,
             self.receiver_position,
@@ -140,7 +139,7 @@ class FacilityEnv(AASLEnv):
         frames = []
         for pod in sorted(self.extra_pods):
             z, noise = measured.get(pod, (np.full(2, np.nan), np.eye(2)))
-            frames.append((z, self.hydrophones[pod], noise))
+            frames.append(PairFrame(z, noise, self.hydrophones[pod]))
         return frames
 
     def _track(self, z: np.ndarray) -> TrackerOutput:

@@ -533,6 +533,7 @@ class UnscentedKalmanFilter:
         if self.sigmas_f is None:
             raise RuntimeError("predict() must run before update_stacked()")
         covariance = (deviations.T * self.Wc) @ deviations + R
+        covariance = 0.5 * (covariance + covariance.T)  # R may be a Schur complement, symmetric to rounding
         factor = np.linalg.cholesky(covariance)
         cross = ((self.sigmas_f - self.x).T * self.Wc) @ deviations
         gain = linalg.cho_solve((factor, True), cross.T).T

@@ -293,10 +293,12 @@ class FrontEnd:
     detection_snr_db: float = 13.0  # dB, the tone detector's threshold (:func:`detection_statistic`)
     waveform: Waveform | None = None
     channel: Channel | None = None  # the latest frame synthesized
+    channel_time: float = 0.0  # s, its centre
 
     def reset(self, rng: np.random.Generator) -> None:
         """A new episode: a fresh random phase (and hop sequence)."""
         self.waveform = Waveform.random(self.waveform_kind, rng, frequency=self.frequency)
+        self.channel = None
 
     def measure(
         self,
@@ -335,7 +337,7 @@ class FrontEnd:
             rng,
             fault,
         )
-        self.channel = channel  # the latest frame, whose robot channel :meth:`measure_pairs` shares
+        self.channel, self.channel_time = channel, time  # the latest frame, whose robot channel measure_pairs shares
         return self.process(channel)
 
     def process(self, channel: Channel) -> tuple[FrameEstimate, np.ndarray, bool]:
@@ -347,13 +349,14 @@ class FrontEnd:
         return result, self.snr(envelope), self.heard(channel, envelope)
 
     def measure_pairs(
-        self, rng: np.random.Generator, time: float, source, source_velocity, hydrophones: np.ndarray
+        self, rng: np.random.Generator, source, source_velocity, hydrophones: np.ndarray
     ) -> list[tuple[FrameEstimate, np.ndarray, bool]]:
-        """The latest frame (:meth:`measure`'s, centred on ``time``) at each further fixed hydrophone (K, 3;
-        m), each paired with that frame's robot channel (one recording: its noise is every pair's), as
-        :meth:`process` gives them."""
-        mobile = self.channel
-        assert self.waveform is not None and mobile is not None  # measure() synthesized the robot's frame
+        """The latest frame (:meth:`measure`'s, the source as it took it) at each further fixed hydrophone
+        (K, 3; m), each paired with that frame's robot channel (one recording: its noise is every pair's),
+        as :meth:`process` gives them."""
+        if self.channel is None or self.waveform is None:
+            raise RuntimeError("measure() must synthesize the robot's frame before measure_pairs()")
+        mobile, time = self.channel, self.channel_time
         paths = path_sources(
             source, source_velocity, self.reflections, self.water_depth, self.surface_reflection, self.bed_reflection
         )

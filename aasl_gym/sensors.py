@@ -57,7 +57,6 @@ class Sensor(Protocol):
     def measure_pairs(
         self,
         rng: np.random.Generator,
-        time: float,
         source_position,
         source_velocity,
         mobile,
@@ -65,9 +64,10 @@ class Sensor(Protocol):
         hydrophones: dict[int, np.ndarray],
         range_rate_bias: float = 0.0,
     ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """After :meth:`measure`, the same frame's further pairs: the robot's hydrophone with each fixed one
-        in ``hydrophones`` (a key, e.g. a pod's index -> its position (3,); m), as z and R_ac by key, each RD
-        unwrapped on a track of its own; z is NaN where a pair's frame is lost."""
+        """After :meth:`measure`, the same frame's further pairs (the true states as :meth:`measure` took
+        them): the robot's hydrophone with each fixed one in ``hydrophones`` (a key, e.g. a pod's index ->
+        its position (3,); m), as z and R_ac by key, each RD unwrapped on a track of its own; z is NaN where
+        a pair's frame is lost."""
 
     def covariance(self) -> np.ndarray:
         """R_ac (2x2; m^2, m^2/s^2): the acoustic noise covariance the filter is told for the latest frame
@@ -103,6 +103,7 @@ class GeometricSensor:
         self.fault = config.fault
         self._covariance = np.diag(self.sd**2)
         self._snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
+        self.lost = False  # the fault option dropped the latest frame
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
         self.unwrapper.reset()
@@ -125,14 +126,14 @@ class GeometricSensor:
         )
         noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
         self._snr = model_snr(self.config, source_position, np.array([mobile, fixed]))
-        if self.fault.active(time):
+        self.lost = self.fault.active(time)
+        if self.lost:
             return np.full(2, np.nan)
         return np.array([self.unwrapper(noisy[0]), noisy[1] + range_rate_bias])
 
     def measure_pairs(
         self,
         rng: np.random.Generator,
-        time: float,
         source_position,
         source_velocity,
         mobile,
@@ -148,8 +149,7 @@ class GeometricSensor:
                 self.model, self.propagation, source_position, source_velocity, mobile, mobile_velocity, fixed
             )
             noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
-            lost = self.fault.active(time)
-            z = np.full(2, np.nan) if lost else self.pair_unwrappers.measurement(key, noisy, range_rate_bias)
+            z = np.full(2, np.nan) if self.lost else self.pair_unwrappers.measurement(key, noisy, range_rate_bias)
             pairs[key] = (z, self._covariance)
         return pairs
 
@@ -216,7 +216,7 @@ class SignalSensor:
         """A new episode; with ``rng``, a fresh random waveform phase (else drawn at the first frame)."""
         self.unwrapper.reset()
         self.pair_unwrappers.clear()
-        self.front_end.waveform = None
+        self.front_end.waveform, self.front_end.channel = None, None
         if rng is not None:
             self.front_end.reset(rng)
 
@@ -250,7 +250,6 @@ class SignalSensor:
     def measure_pairs(
         self,
         rng: np.random.Generator,
-        time: float,
         source_position,
         source_velocity,
         mobile,
@@ -263,9 +262,8 @@ class SignalSensor:
         fault on its channel, are every pair's); R_ac at each pair's measured SNRs. All are lost with a
         dropped frame; one is lost where the detector does not hear its pair."""
         keys = list(hydrophones)
-        frames = self.front_end.measure_pairs(
-            rng, time, source_position, source_velocity, np.array([hydrophones[key] for key in keys]).reshape(-1, 3)
-        )
+        positions = np.array([hydrophones[key] for key in keys]).reshape(-1, 3)
+        frames = self.front_end.measure_pairs(rng, source_position, source_velocity, positions)
         pairs = {}
         for key, (result, snr, heard) in zip(keys, frames):
             measured = np.array([result.range_difference, result.range_rate_difference])

@@ -337,18 +337,20 @@ def test_saturation_is_detected_on_both_paths(rng):
 def test_further_pairs_share_the_robots_recording(rng):
     """Further pairs pair each fixed channel with the robot's channel of the same frame: with every
     channel at the same SNR, two pairs' RD errors e_m - e_a and e_m - e_b share e_m, so their correlation
-    is 1/2 (it would be 0 if each pair drew the robot's noise afresh), and the main pair's is 1/2 with each."""
+    is 1/2 (it would be 0 if each pair drew the robot's noise afresh), and the main pair's is 1/2 with each;
+    likewise their RRD errors (all still: the true RRD is 0)."""
     source = np.array([0.0, 0.0, -30.0])
     receivers = source + 25.0 * np.array([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, -1.0, 0]])
     mobile, fixed, others = receivers[0], receivers[1], receivers[2:]
     truth = [geometry.range_difference(source, mobile, r) for r in (fixed, *others)]
     front_end = frontend.FrontEnd(noise_level_db=100.0)  # about 12 dB at 25 m: errors well above rounding
     front_end.reset(rng)
-    errors = []
+    rd_errors, rrd_errors = [], []
     for _ in range(300):
         main = front_end.measure(rng, 1.0, source, np.zeros(3), mobile, np.zeros(3), fixed)[0]
-        pairs = front_end.measure_pairs(rng, 1.0, source, np.zeros(3), others)
-        measured = [main.range_difference] + [result.range_difference for result, _, _ in pairs]
-        errors.append(np.array(measured) - truth)
-    correlation = np.corrcoef(np.array(errors).T)
-    assert np.all(np.abs(correlation[np.triu_indices(3, 1)] - 0.5) < 0.12)
+        results = [main] + [result for result, _, _ in front_end.measure_pairs(rng, source, np.zeros(3), others)]
+        rd_errors.append([result.range_difference for result in results] - np.array(truth))
+        rrd_errors.append([result.range_rate_difference for result in results])
+    for errors in (rd_errors, rrd_errors):
+        correlation = np.corrcoef(np.array(errors).T)
+        assert np.all(np.abs(correlation[np.triu_indices(3, 1)] - 0.5) < 0.12)
