@@ -21,10 +21,12 @@ the robot's recording (its channel's noise, ``shared``, a share of each pair's R
 navigation error (the stacked receiver Jacobians' H_r Sigma_r H_r^T, off the diagonal too), with each
 other and with the main pair. So the update takes the pairs' joint covariance and conditions it on the
 main pair's frame, which the hypothesis has already taken: the pairs' innovation less its regression on the
-main pair's innovation, with the conditional covariance, is independent of what was assimilated. The
-update is undone if its NIS exceeds the chi-square gate (0.999). Under the phasor model only a hypothesis
-that resolved the ripple takes extra pairs. The hypotheses' weights, and each filter's last innovation,
-stay the main pair's: the offsets come from the leader, so extra pairs cannot weigh it against the others.
+main pair's innovation, with the conditional covariance, is independent of what was assimilated. A
+hypothesis leaves out a pair whose own NIS (given the main frame) is beyond the chi-square gate
+(``GATE_QUANTILE``), and undoes the stacked update if its NIS is beyond the gate of its size. Under the
+phasor model only a hypothesis that resolved the ripple takes extra pairs. The hypotheses' weights, and
+each filter's last innovation, stay the main pair's: the offsets come from the leader, so extra pairs
+cannot weigh it against the others.
 
 Why the probation: a first version (session 19) placed offsets at once. In the free field a leader that
 was confidently wrong early on placed them wrongly, and every later update pulled the bank towards it.
@@ -47,9 +49,8 @@ from aasl_gym.measurement_models import receiver_noise
 if TYPE_CHECKING:
     from aasl_gym.estimator import Hypothesis
 
-GATE_QUANTILE = (
-    0.999  # chi-square quantile of an extra pair's NIS, and of the stacked update's, beyond which it is refused
-)
+# The chi-square quantile of an extra pair's NIS, and of the stacked update's, beyond which it is refused.
+GATE_QUANTILE = 0.999
 
 # A pair's [RD, RRD] at a hypothesis's sigma points (2n+1, n) -> (2n+1, 2), and its receiver Jacobian at the
 # mean (2, 6): given the hypothesis, the sigma points and the pair's fixed hydrophone (3,), or None for the
@@ -194,18 +195,16 @@ class ExtraPairs:
             if predictions is None:
                 return 0
             first = 1 if main is not None else 0
+            own = [predictions[:first] + [prediction] for prediction in predictions[first:]]
             kept = [
-                index
-                for index, frame in enumerate(confirmed)
-                if self._nis(
-                    ukf, *self._stacked(ukf, predictions[:first] + [predictions[first + index]], [frame], main, shared)
-                )
-                <= gate(2)
+                i
+                for i, frame in enumerate(confirmed)
+                if self._nis(ukf, *self._stacked(ukf, own[i], [frame], main, shared)) <= gate(2)
             ]
             if not kept:
                 return 0
-            taken = predictions[:first] + [predictions[first + index] for index in kept]
-            stacked = self._stacked(ukf, taken, [confirmed[index] for index in kept], main, shared)
+            taken = predictions[:first] + [predictions[first + i] for i in kept]
+            stacked = self._stacked(ukf, taken, [confirmed[i] for i in kept], main, shared)
             ukf.sigmas_f = sigmas
             if ukf.update_stacked(*stacked) <= gate(len(stacked[0])):
                 return len(kept)
