@@ -9,17 +9,17 @@ the source loudest and flies the spiral about it; the tracker pairs the mobile h
 as the reference paper does, with its prior about that pod. With ``facility.pairs: all`` every other pod
 whose hydrophone hears the source adds an extra pair: its channel of the robot's frame, paired with the
 robot's channel (:meth:`~aasl_gym.sensors.Sensor.measure_pairs`; :mod:`aasl_gym.extra_pairs` says how the
-tracker tests and takes them). The action is a residual on that
-scripted command, as in the other patrol ids, and the observation, reward and metrics are theirs (the metrics count
-from the tracker's estimate, so from after detection). The observation does not say which pod is paired or
-whether the attack was heard; a policy sees it through the estimate once the tracker runs. The robot is kept
-out of the paired pod's sphere only; the config requires the patrols to pass above every pod.
+tracker tests and takes them). The action is a residual on that scripted command, as in the other patrol
+ids, and the observation, reward and metrics are theirs (the metrics count from the tracker's estimate, so
+from after detection). The observation does not say which pod is paired or whether the attack was heard; a
+policy sees it through the estimate once the tracker runs. The robot is kept out of the paired pod's sphere
+only; the config requires the patrols to pass above every pod.
 
 Extra ``info`` keys: ``detected`` (bool), ``pod`` (the paired pod's index, -1 before detection),
-``extra_pairs`` (how many extra pairs updated the tracker this step), ``source_pod`` (the pod the attack
-began next to) and ``detection_time`` (s, inf before); ``fixed_position``
-is the paired pod's hydrophone (before detection: ``world.fixed_position``, the facility's centre). Before
-detection there is no frame: ``measurement`` is NaN, as for a lost frame, and ``snr_db`` -inf.
+``extra_pairs`` (how many extra pairs updated the likeliest hypothesis this step), ``source_pod`` (the pod
+the attack began next to) and ``detection_time`` (s, inf before); ``fixed_position`` is the paired pod's
+hydrophone (before detection: ``world.fixed_position``, the facility's centre). Before detection there is
+no frame: ``measurement`` is NaN, as for a lost frame, and ``snr_db`` -inf.
 """
 
 from __future__ import annotations

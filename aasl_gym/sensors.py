@@ -103,7 +103,7 @@ class GeometricSensor:
         self.fault = config.fault
         self._covariance = np.diag(self.sd**2)
         self._snr = np.full(2, np.nan)  # linear, (mobile, fixed), of the latest frame
-        self.lost = False  # the fault option dropped the latest frame
+        self.dropped = False  # the fault option dropped the latest frame
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
         self.unwrapper.reset()
@@ -126,8 +126,8 @@ class GeometricSensor:
         )
         noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
         self._snr = model_snr(self.config, source_position, np.array([mobile, fixed]))
-        self.lost = self.fault.active(time)
-        if self.lost:
+        self.dropped = self.fault.active(time)
+        if self.dropped:
             return np.full(2, np.nan)
         return np.array([self.unwrapper(noisy[0]), noisy[1] + range_rate_bias])
 
@@ -149,7 +149,7 @@ class GeometricSensor:
                 self.model, self.propagation, source_position, source_velocity, mobile, mobile_velocity, fixed
             )
             noisy = truth + self.sd * rng.normal(0.0, 1.0, 2)
-            z = np.full(2, np.nan) if self.lost else self.pair_unwrappers.measurement(key, noisy, range_rate_bias)
+            z = np.full(2, np.nan) if self.dropped else self.pair_unwrappers.measurement(key, noisy, range_rate_bias)
             pairs[key] = (z, self._covariance)
         return pairs
 
