@@ -117,16 +117,28 @@ class ExtraPairs:
             self.leader = bank[0].ukf
             for track in self.tracks.values():
                 track.reanchor = "leader"
-        confirmed = []
+        present = []
         for frame in frames:
             key = tuple(float(v) for v in frame.hydrophone)  # type: ignore[union-attr]  # an extra pair's
-            if not np.all(np.isfinite(frame.z)):
-                if key in self.tracks and self.tracks[key].reanchor != "leader":
-                    self.tracks[key].reanchor = "gap"
-                continue
+            if np.all(np.isfinite(frame.z)):
+                present.append((key, frame))
+            elif key in self.tracks and self.tracks[key].reanchor != "leader":
+                self.tracks[key].reanchor = "gap"
+        if not present:
+            return 0
+        leader = bank[0]
+        try:  # the leader's sigma points and main-pair prediction, which every pair's test shares
+            sigmas = merwe_sigma_points(leader.ukf.x, leader.ukf.P, leader.ukf.spread)
+            leading = self._predictions(leader, sigmas, [], model, main)
+        except np.linalg.LinAlgError:  # the leader's covariance broke: it is dropped at its next update
+            return 0
+        if leading is None:
+            return 0
+        confirmed = []
+        for key, frame in present:
             try:
-                tested = self._tested(key, frame, bank[0], model, main, shared)
-            except np.linalg.LinAlgError:  # the leader's covariance broke: it is dropped at its next update
+                tested = self._tested(key, frame, leader, sigmas, leading, model, main, shared)
+            except np.linalg.LinAlgError:
                 continue
             if tested is not None and tested.confirmed:
                 confirmed.append(frame._replace(z=frame.z - np.array([tested.offset, 0.0])))
@@ -140,19 +152,22 @@ class ExtraPairs:
         key: tuple[float, ...],
         frame: PairFrame,
         leader: Hypothesis,
+        sigmas: np.ndarray,
+        leading: list[tuple[np.ndarray, np.ndarray]],
         model: PairModel,
         main: PairFrame | None,
         shared: np.ndarray,
     ) -> PairTrack | None:
-        """The pair's track after this frame's test under the leader: placed or placed again if it can
-        be (else None), dropped (None) once its NIS window is inconsistent, confirmed once it is consistent.
-        The NIS is the one the update gates on: given the main pair's frame."""
+        """The pair's track after this frame's test under the leader (its ``sigmas`` and, in ``leading``,
+        the main pair's prediction there if it has a frame): placed or placed again if it can be (else
+        None), dropped (None) once its NIS window is inconsistent, confirmed once it is consistent. The NIS
+        is the one the update gates on: given the main pair's frame."""
         ukf = leader.ukf
-        sigmas = merwe_sigma_points(ukf.x, ukf.P, ukf.spread)
-        predictions = self._predictions(leader, sigmas, [frame], model, main)
-        if predictions is None:
+        prediction = model(leader, sigmas, frame.hydrophone)
+        if prediction is None:
             return None
-        predicted, jacobian = predictions[-1]
+        predictions = leading + [prediction]
+        predicted, jacobian = prediction
         track = self.tracks.get(key)
         if track is None or track.reanchor:
             periods: float | None = 0.0

@@ -3,6 +3,7 @@ paper's) and its figures - the coefficient heat maps, the navigation sweep and t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,10 +45,16 @@ def _fmt(value: float | None, digits: int = 2) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def _median_cell(values: Sequence[float | None], digits: int = 2) -> str:
+    """The median of the known ``values``, or "-"."""
+    known = [value for value in values if value is not None]
+    return _fmt(float(np.median(known)), digits) if known else "-"
+
+
 def _rmse_cells(rmse: list[float]) -> tuple[str, str]:
     """The table's "mean ± sd" (with two trials or more) and median of trials' RMSEs (m)."""
     spread = f"{np.mean(rmse):.2f} ± {np.std(rmse, ddof=1):.2f}" if len(rmse) > 1 else "-"
-    return spread, f"{np.median(rmse):.2f}" if rmse else "-"
+    return spread, _median_cell(rmse)
 
 
 def _pm(entry: Row, metric: str) -> str:
@@ -248,7 +255,7 @@ def _facility_section(rows: list[Row]) -> list[str]:
         trials = [row for row in rows if row["motion"] == motion and row["variant"] == variant]
         heard = [row for row in trials if row["detection_time"] is not None]
         same_pod = np.mean([row["pod"] == row["source_pod"] for row in heard]) if heard else float("nan")
-        detection = _fmt(float(np.median([row["detection_time"] for row in heard])), 1) if heard else "-"
+        detection = _median_cell([row["detection_time"] for row in heard], 1)
         spread, median = _rmse_cells([row["rmse"] for row in trials if row["rmse"] is not None])
         success = np.mean([row["success"]["1.0"] for row in trials])
         delays = [
@@ -261,12 +268,6 @@ def _facility_section(rows: list[Row]) -> list[str]:
             f"| {_median_cell([row['rmse_second_half'] for row in trials])} | {PAPER_FACILITY_RMSE:.2f} |"
         )
     return lines + ["", *_paired_lines(rows, "loudest pod", "rmse")]
-
-
-def _median_cell(values: list[float | None], digits: int = 2) -> str:
-    """The median of the known ``values``, or "-"."""
-    known = [value for value in values if value is not None]
-    return _fmt(float(np.median(known)), digits) if known else "-"
 
 
 def _paired_lines(rows: list[Row], baseline: str, metric: str) -> list[str]:
