@@ -172,19 +172,21 @@ class AASLEnv(gym.Env):
     Every step: ``time``, ``source_position``, ``source_velocity``, ``receiver_position``,
     ``receiver_velocity``, ``receiver_position_reported``, ``fixed_position``, ``estimate_position``,
     ``estimate_velocity``, ``position_error`` (of that estimate) and ``position_covariance`` (3x3),
-    ``measurement``, ``measurement_true`` (noise-free direct-path [RD, RRD]), ``snr_db`` (of the weaker
+    ``measurement`` (the last [RD, RRD] the estimator received, as the observation shows it: held over
+    lost frames, zeros before the first), ``measured`` (whether that frame is this step's),
+    ``measurement_true`` (noise-free direct-path [RD, RRD]), ``snr_db`` (of the weaker
     channel: in signal mode as the front end measures it, else from the source level, spreading and
     noise level), ``initialized``, ``converged`` (error below the threshold now), ``reinitialized``,
     ``fim_logdet``, ``reward_terms``. Until the filter starts (``initialized`` False) the estimate is
     the prior's - a finite mean and covariance (``aasl_gym.fisher.information_prior``) - so no value
-    is NaN and Gymnasium's ``check_env`` passes. The one exception is a lost frame - one the ``fault``
-    option drops, or in which the front end's detector hears no source (``signal.detection_snr_db``):
-    its ``measurement`` (and, if dropped, ``snr_db``) is NaN, the filter only predicts, and the
-    observation keeps the last measurement. On the last step also ``convergence_time``, ``rmse``,
-    ``final_error``, ``success`` (threshold -> bool), ``time_to_first_estimate`` and
-    ``reinitializations``; these count from the tracker's own estimate (the prior never converges and
-    is not in the RMSE), and the ones that can be NaN (``convergence_time`` when it never converged)
-    are 0-d float64 arrays, so that two infos from the same seed compare equal NaN for NaN.
+    is NaN and Gymnasium's ``check_env`` passes. A lost frame - one the ``fault`` option drops, or in
+    which the front end's detector hears no source (``signal.detection_snr_db``) - has ``measured``
+    False (and, if dropped, ``snr_db`` NaN); the filter only predicts. On the last step also
+    ``convergence_time``, ``rmse``, ``final_error``, ``success`` (threshold -> bool),
+    ``time_to_first_estimate`` and ``reinitializations``; these count from the tracker's own estimate
+    (the prior never converges and is not in the RMSE). The ones that can be NaN (``convergence_time``
+    when it never converged) are 0-d float64 arrays; ``numpy.testing.assert_equal`` compares them NaN
+    for NaN, Gymnasium's ``np.allclose`` does not.
 
     ## Arguments
     ``AASLEnv(config=None, patrol=None, render_mode=None, scenario=None, source_motion=None,
@@ -450,7 +452,8 @@ class AASLEnv(gym.Env):
             "estimate_velocity": self.tracker.velocity,
             "position_error": position_error,
             "position_covariance": self.tracker.position_covariance,
-            "measurement": np.asarray(z, dtype=float),
+            "measurement": self._last_measurement.copy(),
+            "measured": bool(np.all(np.isfinite(z))),
             "measurement_true": direct_measurement(
                 self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed
             ),

@@ -19,7 +19,7 @@ Extra ``info`` keys: ``detected`` (bool), ``pod`` (the paired pod's index, -1 be
 ``extra_pairs`` (how many extra pairs updated the likeliest hypothesis this step), ``source_pod`` (the pod
 the attack began next to) and ``detection_time`` (s, inf before); ``fixed_position`` is the paired pod's
 hydrophone (before detection: ``world.fixed_position``, the facility's centre). Before detection there is
-no frame: ``measurement`` is NaN, as for a lost frame, and ``snr_db`` -inf.
+no frame: ``measured`` is False, ``measurement`` zeros (no frame received yet) and ``snr_db`` -inf.
 """
 
 from __future__ import annotations
