@@ -1,6 +1,7 @@
 """The tracker: its hypothesis bank against independent truths (the true whole-period offset, the truth trajectory)."""
 
 import copy
+import itertools
 
 import numpy as np
 import pytest
@@ -271,6 +272,9 @@ def test_a_burst_of_corrupted_frames_does_not_lose_the_source(kind):
         infos = [env.step(np.zeros(3))[4] for _ in range(600)]
         lost = [info["time"] for info in infos if not info["measured"]]
         assert len(lost) == 25 and min(lost) >= 80.0 - 1e-9 and max(lost) < 85.0
+        for before, after in itertools.pairwise(infos):  # info, as the observation, holds the last frame
+            if not after["measured"]:
+                np.testing.assert_array_equal(after["measurement"], before["measurement"])
         assert max(info["position_error"] for info in infos[425:]) < 1.0, seed
 
 
