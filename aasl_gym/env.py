@@ -49,6 +49,11 @@ OVERRIDES: dict[str, tuple[str, str]] = {
 ENV_PATROLS = (*PATROLS, "greedy")  # what an env's action may be a residual on (``patrol``)
 
 
+def received(z: np.ndarray) -> bool:
+    """Whether a step's [RD, RRD] ``z`` is a frame: a lost one (dropped, unheard, or none yet) is NaN."""
+    return bool(np.all(np.isfinite(z)))
+
+
 def resolve_config(
     config: EnvConfig | Mapping[str, Any] | str | Path | None, scenario: str | None = None, **overrides: Any
 ) -> EnvConfig:
@@ -389,7 +394,7 @@ class AASLEnv(gym.Env):
                 self.reported_position,
                 self.reported_velocity,
             )
-        if np.all(np.isfinite(z)):  # the observation holds the last measurement over lost frames
+        if received(z):  # the observation holds the last measurement over lost frames
             self._last_measurement[:] = z
         innovation_known = np.all(np.isfinite(out.innovation))
         self._last_innovation[:] = out.innovation / out.innovation_sd if innovation_known else 0.0
@@ -401,7 +406,7 @@ class AASLEnv(gym.Env):
         jacobian = measurement_jacobian(
             self.tracker.position, self.tracker.velocity, self.reported_position, self.reported_velocity, self.fixed
         )
-        measured = bool(np.all(np.isfinite(z)))
+        measured = received(z)
         noise = self.sensor.covariance() + self.navigation_covariance
         return self.information.step(self.dt, jacobian if measured else None, noise)
 
@@ -453,7 +458,7 @@ class AASLEnv(gym.Env):
             "position_error": position_error,
             "position_covariance": self.tracker.position_covariance,
             "measurement": self._last_measurement.copy(),
-            "measured": bool(np.all(np.isfinite(z))),
+            "measured": received(z),
             "measurement_true": direct_measurement(
                 self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed
             ),
