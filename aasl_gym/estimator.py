@@ -49,7 +49,8 @@ lattice about the likeliest filter (a filter 2-4 m off can sit in a dip that exp
 
 Recovery, at any time. When the likeliest filter's mean NIS over ``divergence_window`` exceeds
 ``divergence_nis`` (after ``reinit_cooldown``), the tracker re-seeds on the last ``reinit_window``
-seconds, the running filters competing with their covariances widened by ``filter.recovery_inflation``.
+seconds, the running filters competing with their covariances widened by ``filter.recovery_inflation``
+(under the phasor model with the finds of a search of the ball about the filter, :meth:`_search_regionally`).
 If a fresh hypothesis wins, the step reports a re-initialization and the new track re-seeds its
 growing window as after a start. The window is short on purpose: a source the filter's motion model
 does not fit (a turning source under the default straight-line filter) is found again on 10 s, not on
@@ -128,6 +129,8 @@ from aasl_gym.search import (
     LOCAL_POOL,
     LOCAL_SPACING,
     LOCAL_UNTIL,
+    REGIONAL_COOLDOWN,
+    REGIONAL_RADIUS,
     SEARCH_POOL,
     SEARCH_WINDOW,
     TRACK_SEARCH_GATE,
@@ -279,6 +282,7 @@ class SourceTracker:
         self.searched = False  # the phasor search ran (once an episode)
         self.pool = np.zeros((0, self.model.dim))  # its fine candidates, refitted at each scheduled re-seed
         self.pool_time = np.nan  # s, when the pool's states are given
+        self.last_regional_search = -np.inf  # s, a recovery's (:meth:`_search_regionally`)
         self.extra_pairs.reset()
         self.main_measurement: PairFrame | None = None  # this step's z and R_ac, which every hypothesis took
 
@@ -563,6 +567,26 @@ class SourceTracker:
         found = found[:LOCAL_POOL]
         carried = self._carried_pool(time, SEARCH_POOL - len(found)) if len(self.pool) else found[:0]
         self.pool, self.pool_time = np.concatenate([carried, found]), time
+
+    def _search_regionally(self, time: float) -> None:
+        """In a recovery, the phasor search on the last ``SEARCH_WINDOW`` seconds from the prior's kind of lattice
+        (at rest) filling the ball of ``search.REGIONAL_RADIUS`` about the likeliest filter, at most every
+        ``search.REGIONAL_COOLDOWN`` seconds; at most ``LOCAL_POOL`` of its finds lead the pool the recovery's
+        re-seed refits. Only after the search from the prior: the local cube reaches 3 m, and a filter that never
+        found its source (spiral CTRV tuning seeds) sat 6-40 m off it, its track searches and recoveries
+        finding only nearby dips."""
+        if not (self.searches and self.searched) or time - self.last_regional_search < REGIONAL_COOLDOWN:
+            return
+        self.last_regional_search = time
+        ball = Box(REGIONAL_RADIUS, self.region.z_min, self.region.z_max)
+        lattice = prior_lattice(ball, self.config.initializer.search_spacing, self.ukf.x[0:3])
+        starts = np.zeros((len(lattice), self.model.dim))
+        starts[:, 0:3], starts[:, -2] = lattice, self.range_offset
+        burst = self._burst(min(self.search_length, len(self.history)), fine=True)
+        found = search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
+        carried = self._carried_pool(time) if len(self.pool) else found[:0]
+        self.pool = np.concatenate([found[:LOCAL_POOL], carried])[:SEARCH_POOL]
+        self.pool_time = time
 
     @property
     def _sheets_checkable(self) -> bool:
@@ -1017,10 +1041,12 @@ class SourceTracker:
             # A filter on a neighbouring whole-period sheet drifts off slowly: the long window tells first.
             logger.debug("inconsistent at t = %.1f s; re-seeding on the recent window", time)
             jumped = self._sheets_checkable and self._check_track(time)
-            if not jumped and self._reseed(time, rng, self.config.filter.recovery_inflation, self.reinit_length):
-                jumped = True  # a new track: re-seed its growing window as after a start
-                self.window_start = self.history[-min(self.reinit_length, len(self.history))][0]
-                self.reseeding = self.reseed_length > 0
+            if not jumped:
+                self._search_regionally(time)
+                if self._reseed(time, rng, self.config.filter.recovery_inflation, self.reinit_length):
+                    jumped = True  # a new track: re-seed its growing window as after a start
+                    self.window_start = self.history[-min(self.reinit_length, len(self.history))][0]
+                    self.reseeding = self.reseed_length > 0
         elif self._reseed_due(time):
             self._reseed(time, rng)
         elif self._track_check_due(time):

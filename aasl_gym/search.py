@@ -19,7 +19,9 @@ episode on the first ``SEARCH_WINDOW`` seconds from :func:`prior_lattice` - the 
 ``source.initial_radius`` grown by ``initializer.max_source_speed``, within the water column - and,
 while its growing window is under ``LOCAL_UNTIL``, on the last seconds from :func:`local_lattice`
 about its likeliest filter. It keeps the finds as a pool that each re-seed refits on its window: a
-wrong dip that explained 5 s rarely explains 20.
+wrong dip that explained 5 s rarely explains 20. A recovery (the likeliest filter turned inconsistent) searches
+the last seconds from :func:`prior_lattice` about that filter, the ball of ``REGIONAL_RADIUS``: a filter that
+never found its source can sit tens of metres off it, beyond the local cube's reach.
 
 After the growing window, a filter can sit in a wrong dip of its whole track's phasor fit (a CV filter on a
 parked source drifts into one), where the refit from its own state stays. :func:`search_track` looks about it
@@ -42,6 +44,11 @@ LOCAL_HALF_WIDTH = 3.0  # m: the local search's cube about the likeliest filter
 LOCAL_SPACING = 1.5  # m: its lattice
 LOCAL_UNTIL = 60.0  # s of growing window after which no local search runs (30 s: CV 37 of 60 tuning seeds, 60 s: 45)
 LOCAL_POOL = 16  # of its finds, at most this many join the pool (which keeps at most SEARCH_POOL)
+# m: a recovery's search ball about the likeliest filter, and s between two such searches. Spiral CTRV tuning seeds
+# 20000-20095 and 20100-20195: 152 -> 161 of 192 found, lost tracks 19 -> 8, the same time per episode (a search at
+# every recovery: 1.6x the time); spiral static / CV 47 / 40 -> 48 / 39 of 48; the helix 96 of 96 either way.
+REGIONAL_RADIUS = 12.0
+REGIONAL_COOLDOWN = 20.0
 SEARCH_POOL = 64  # candidates the pool keeps between re-seeds, best first
 HELD_POSITION_SD = 0.5  # m: the position prior of the velocity solve, about the lattice point
 SOLVE_ITERATIONS = 4  # Levenberg-Marquardt iterations of that solve, on each of its windows

@@ -114,14 +114,43 @@ def test_the_tracker_recovers_a_lost_source_late_in_the_episode():
         assert max(errors[150:]) < 1.0, seed
 
 
-def _errors_after_replacing_the_bank(env: AASLEnv, seed: int, steps: int, make_state, after: int) -> list[float]:
+def test_a_recovery_in_the_default_world_searches_the_ball_about_a_lost_filter():
+    """The default world (signal mode, reflections, the phasor filter), a CV source on the helix. At 70 s the
+    bank is replaced by one confident filter 10 m off the source, and the tracker forgets its pool and its
+    last whole-track fit, as if it had never found the source. The recovery's search of the ball about the
+    filter (:meth:`SourceTracker._search_regionally`) finds it again: within 1 m in 30 s, there to stay (tuning
+    seeds 10000-10002: 10-30 s). Without that search the local one (3 m) does not reach it and the track is
+    lost (38-120 m off at 120 s)."""
+
+    def lost(info: dict) -> np.ndarray:
+        state = np.zeros(8)
+        state[0:3] = info["source_position"] + np.array([6.0, -6.0, 5.0])
+        state[-2] = info["measurement"][0] - info["measurement_true"][0]
+        return state
+
+    env = AASLEnv(EnvConfig().replace(source={"motion": "cv"}), patrol="helix")
+    for seed in (10000, 10001):
+        errors = _errors_after_replacing_the_bank(env, seed, 350, lost, 250, forget=True)
+        assert max(errors[150:]) < 1.0, seed
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(estimator.SourceTracker, "_search_regionally", lambda self, time: None)
+        assert _errors_after_replacing_the_bank(env, 10000, 350, lost, 250, forget=True)[-1] > 5.0
+
+
+def _errors_after_replacing_the_bank(
+    env: AASLEnv, seed: int, steps: int, make_state, after: int, forget: bool = False
+) -> list[float]:
     """Position errors over ``after`` steps once, after ``steps`` steps of the seeded episode, the bank
-    was replaced by one confident straight-line filter at ``make_state(info)``."""
+    was replaced by one confident straight-line filter at ``make_state(info)`` (and, if ``forget``, the
+    tracker's phasor-search pool and last whole-track fit were dropped)."""
     env.reset(seed=seed)
     for _ in range(steps):
         info = env.step(np.zeros(3))[4]
     confident = np.diag([0.2**2] * 3 + [0.05**2] * 3 + [0.02**2] * 2)
     env.tracker.bank = [env.tracker._hypothesis(make_state(info), confident, 0.0, info["time"])]
+    if forget:
+        env.tracker.pool = env.tracker.pool[:0]
+        env.tracker.last_track_fit = None
     return [env.step(np.zeros(3))[4]["position_error"] for _ in range(after)]
 
 
