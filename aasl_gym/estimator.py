@@ -548,8 +548,7 @@ class SourceTracker:
         radius = self.config.source.initial_radius + ini.max_source_speed * start
         reach = Box(radius, self.region.z_min, self.region.z_max)
         lattice = prior_lattice(reach, ini.search_spacing, np.asarray(self.config.source.initial_centre))
-        starts = np.zeros((len(lattice), self.model.dim))
-        starts[:, 0:3], starts[:, -2] = lattice, self.range_offset
+        starts = self._starts_at_rest(lattice)
         self.pool = search(first, self.model, starts, self._window_prior, RIPPLE_GATE * first.measurements.size)
         self.pool_time = start
         logger.debug("t = %.1f s: the phasor search keeps %d candidates", time, len(self.pool))
@@ -569,24 +568,29 @@ class SourceTracker:
         self.pool, self.pool_time = np.concatenate([carried, found]), time
 
     def _search_regionally(self, time: float) -> None:
-        """In a recovery, the phasor search on the last ``SEARCH_WINDOW`` seconds from the prior's kind of lattice
-        (at rest) filling the ball of ``search.REGIONAL_RADIUS`` about the likeliest filter, at most every
-        ``search.REGIONAL_COOLDOWN`` seconds; at most ``LOCAL_POOL`` of its finds lead the pool the recovery's
-        re-seed refits. Only after the search from the prior: the local cube reaches 3 m, and a filter that never
-        found its source (spiral CTRV tuning seeds) sat 6-40 m off it, its track searches and recoveries
-        finding only nearby dips."""
+        """In a recovery, the phasor search of the last ``SEARCH_WINDOW`` seconds from a lattice (at rest) filling
+        the ball of ``search.REGIONAL_RADIUS`` about the likeliest filter, at most every ``search.REGIONAL_COOLDOWN``
+        seconds and once the search from the prior has run; at most ``LOCAL_POOL`` of its finds lead the pool that
+        the recovery's re-seed refits. The local cube reaches 3 m, while a filter that never found its source
+        (spiral CTRV tuning seeds) sat 4-40 m off it, where its track searches and recoveries found only nearby
+        dips."""
         if not (self.searches and self.searched) or time - self.last_regional_search < REGIONAL_COOLDOWN:
             return
         self.last_regional_search = time
         ball = Box(REGIONAL_RADIUS, self.region.z_min, self.region.z_max)
-        lattice = prior_lattice(ball, self.config.initializer.search_spacing, self.ukf.x[0:3])
-        starts = np.zeros((len(lattice), self.model.dim))
-        starts[:, 0:3], starts[:, -2] = lattice, self.range_offset
+        starts = self._starts_at_rest(prior_lattice(ball, self.config.initializer.search_spacing, self.ukf.x[0:3]))
         burst = self._burst(min(self.search_length, len(self.history)), fine=True)
         found = search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
         carried = self._carried_pool(time) if len(self.pool) else found[:0]
         self.pool = np.concatenate([found[:LOCAL_POOL], carried])[:SEARCH_POOL]
         self.pool_time = time
+
+    def _starts_at_rest(self, positions: np.ndarray) -> np.ndarray:
+        """Search starts (N, n) at ``positions`` (N, 3; m), at rest, the RD offset at the track's whole-period
+        ``range_offset`` (the searches' velocity solve finds the motion)."""
+        starts = np.zeros((len(positions), self.model.dim))
+        starts[:, 0:3], starts[:, -2] = positions, self.range_offset
+        return starts
 
     @property
     def _sheets_checkable(self) -> bool:
