@@ -50,7 +50,8 @@ lattice about the likeliest filter (a filter 2-4 m off can sit in a dip that exp
 Recovery, at any time. When the likeliest filter's mean NIS over ``divergence_window`` exceeds
 ``divergence_nis`` (after ``reinit_cooldown``), the tracker re-seeds on the last ``reinit_window``
 seconds, the running filters competing with their covariances widened by ``filter.recovery_inflation``
-(under the phasor model with the finds of a search of the ball about the filter, :meth:`_search_regionally`).
+(once the phasor search from the prior has run, with the finds of a search of the ball about the filter, at most
+every ``search.REGIONAL_COOLDOWN`` seconds: :meth:`_search_regionally`).
 If a fresh hypothesis wins, the step reports a re-initialization and the new track re-seeds its
 growing window as after a start. The window is short on purpose: a source the filter's motion model
 does not fit (a turning source under the default straight-line filter) is found again on 10 s, not on
@@ -579,6 +580,8 @@ class SourceTracker:
         self.last_regional_search = time
         ball = Box(REGIONAL_RADIUS, self.region.z_min, self.region.z_max)
         starts = self._starts_at_rest(prior_lattice(ball, self.config.initializer.search_spacing, self.ukf.x[0:3]))
+        if not len(starts):  # a lattice coarser than the ball
+            return
         burst = self._burst(min(self.search_length, len(self.history)), fine=True)
         found = search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
         carried = self._carried_pool(time) if len(self.pool) else found[:0]

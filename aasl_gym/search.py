@@ -44,9 +44,10 @@ LOCAL_HALF_WIDTH = 3.0  # m: the local search's cube about the likeliest filter
 LOCAL_SPACING = 1.5  # m: its lattice
 LOCAL_UNTIL = 60.0  # s of growing window after which no local search runs (30 s: CV 37 of 60 tuning seeds, 60 s: 45)
 LOCAL_POOL = 16  # of its finds, at most this many join the pool (which keeps at most SEARCH_POOL)
-# m: a recovery's search ball about the likeliest filter, and s between two such searches. Spiral CTRV tuning seeds
-# 20000-20095 and 20100-20195: 152 -> 161 of 192 found, lost tracks 19 -> 8, the same time per episode (a search at
-# every recovery: 1.6x the time); spiral static / CV 47 / 40 -> 48 / 39 of 48; the helix 96 of 96 either way.
+# m: the radius of a recovery's search ball about the likeliest filter, and s between two such searches. Spiral CTRV
+# tuning seeds 20000-20095 and 20100-20195: 152 -> 161 of 192 found, lost tracks 19 -> 8, the same time per episode
+# (20000-20095; a search at every recovery keeping every find: 1.6x the time); spiral static / CV 47 / 40 -> 48 / 39
+# of 48; the helix 96 of 96 either way.
 REGIONAL_RADIUS = 12.0
 REGIONAL_COOLDOWN = 20.0
 SEARCH_POOL = 64  # candidates the pool keeps between re-seeds, best first
