@@ -31,7 +31,7 @@ from aasl_gym.observation import OBSERVATION_BOUND, OBSERVATION_SIZE, Observatio
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 from aasl_gym.planning import GreedyPlanner
 from aasl_gym.scenarios import scenario_fields
-from aasl_gym.sensors import make_sensor
+from aasl_gym.sensors import make_sensor, received
 
 if TYPE_CHECKING:
     from aasl_gym.render import Renderer  # imported when first rendering: matplotlib is slow to import
@@ -47,11 +47,6 @@ OVERRIDES: dict[str, tuple[str, str]] = {
 }
 
 ENV_PATROLS = (*PATROLS, "greedy")  # what an env's action may be a residual on (``patrol``)
-
-
-def received(z: np.ndarray) -> bool:
-    """Whether a step's [RD, RRD] ``z`` is a frame: a lost one (dropped, unheard, or none yet) is NaN."""
-    return bool(np.all(np.isfinite(z)))
 
 
 def resolve_config(

@@ -141,6 +141,7 @@ from aasl_gym.search import (
     search,
     search_track,
 )
+from aasl_gym.sensors import received
 from aasl_gym.window import WindowFit, fit_window, whitened_residuals
 
 logger = logging.getLogger(__name__)
@@ -1018,7 +1019,7 @@ class SourceTracker:
         hypothesis adds the navigation term at its own estimate."""
         z = np.asarray(z, dtype=float)
         self.main_measurement = None
-        if not np.all(np.isfinite(z)):
+        if not received(z):
             return self._coast(time, rng)
         if self.gap and not self.initialized:
             self.history.clear()

@@ -45,6 +45,7 @@ from scipy import linalg, stats
 
 from aasl_gym.filters import UnscentedKalmanFilter, merwe_sigma_points, whole_periods
 from aasl_gym.measurement_models import receiver_noise
+from aasl_gym.sensors import received
 
 if TYPE_CHECKING:
     from aasl_gym.estimator import Hypothesis
@@ -120,7 +121,7 @@ class ExtraPairs:
         present = []
         for frame in frames:
             key = tuple(float(v) for v in frame.hydrophone)  # type: ignore[union-attr]  # an extra pair's
-            if np.all(np.isfinite(frame.z)):
+            if received(frame.z):
                 present.append((key, frame))
             elif key in self.tracks and self.tracks[key].reanchor != "leader":
                 self.tracks[key].reanchor = "gap"

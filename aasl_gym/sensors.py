@@ -32,6 +32,11 @@ from aasl_gym.measurement_models import (
 from aasl_gym.synthesis import FrameFault
 
 
+def received(z: np.ndarray) -> bool:
+    """Whether a step's [RD, RRD] ``z`` is a frame: a lost one (dropped, unheard, or none yet) is NaN."""
+    return bool(np.all(np.isfinite(z)))
+
+
 @runtime_checkable
 class Sensor(Protocol):
     """One measurement mode as the env drives it: :meth:`reset` at an episode's start, :meth:`measure`
