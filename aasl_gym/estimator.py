@@ -563,9 +563,7 @@ class SourceTracker:
         lattice = local_lattice(x[0:3], LOCAL_HALF_WIDTH, LOCAL_SPACING)
         starts = np.repeat(x[None], len(lattice), axis=0)
         starts[:, 0:3] = lattice
-        burst = self._burst(min(self.search_length, len(self.history)), fine=True)
-        found = search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
-        found = found[:LOCAL_POOL]
+        found = self._search_recent(starts)[:LOCAL_POOL]
         carried = self._carried_pool(time, SEARCH_POOL - len(found)) if len(self.pool) else found[:0]
         self.pool, self.pool_time = np.concatenate([carried, found]), time
 
@@ -581,13 +579,16 @@ class SourceTracker:
         self.last_regional_search = time
         ball = Box(REGIONAL_RADIUS, self.region.z_min, self.region.z_max)
         starts = self._starts_at_rest(prior_lattice(ball, self.config.initializer.search_spacing, self.ukf.x[0:3]))
-        if not len(starts):  # a lattice coarser than the ball
-            return
-        burst = self._burst(min(self.search_length, len(self.history)), fine=True)
-        found = search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
+        found = self._search_recent(starts)
         carried = self._carried_pool(time) if len(self.pool) else found[:0]
         self.pool = np.concatenate([found[:LOCAL_POOL], carried])[:SEARCH_POOL]
         self.pool_time = time
+
+    def _search_recent(self, starts: np.ndarray) -> np.ndarray:
+        """The phasor search (:func:`~aasl_gym.search.search`) of the last ``SEARCH_WINDOW`` seconds from
+        ``starts`` (S, n) at the latest sample: its fine candidates there, best first."""
+        burst = self._burst(min(self.search_length, len(self.history)), fine=True)
+        return search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
 
     def _starts_at_rest(self, positions: np.ndarray) -> np.ndarray:
         """Search starts (N, n) at ``positions`` (N, 3; m), at rest, the RD offset at the track's whole-period

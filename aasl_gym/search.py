@@ -95,7 +95,10 @@ def search(burst: Burst, model: MotionModel, starts: np.ndarray, window_prior, g
     ``gate``), best first, at most ``SEARCH_POOL``, from ``starts`` (S, n) there; ``burst`` carries the
     filter's own (phasor) model and ``window_prior(states)`` gives the window fits' prior (mean (C, n),
     sd (n,)). Each start's velocity is solved first with its position held (``HELD_POSITION_SD``,
-    :func:`solve_velocity`); the best ``SEARCH_SCREEN`` of those are then fitted freely."""
+    :func:`solve_velocity`); the best ``SEARCH_SCREEN`` of those are then fitted freely. No starts (a lattice
+    coarser than its ball), no candidates."""
+    if not len(starts):
+        return starts.copy()
     prior_mean, prior_sd = window_prior(starts)
     prior_mean[:, 0:3], held_sd = starts[:, 0:3], prior_sd.copy()
     held_sd[0:3] = HELD_POSITION_SD
