@@ -19,7 +19,8 @@ episode on the first ``SEARCH_WINDOW`` seconds from :func:`prior_lattice` - the 
 ``source.initial_radius`` grown by ``initializer.max_source_speed``, within the water column - and,
 while its growing window is under ``LOCAL_UNTIL``, on the last seconds from :func:`local_lattice`
 about its likeliest filter. It keeps the finds as a pool that each re-seed refits on its window: a
-wrong dip that explained 5 s rarely explains 20. A recovery (the likeliest filter turned inconsistent) searches
+wrong dip that explained 5 s rarely explains 20. Where the growing window is longer than ``LEAD_IN``, the local
+finds are first fitted on its last ``LEAD_IN`` seconds, which lead them into the long window's narrow basin. A recovery (the likeliest filter turned inconsistent) searches
 the last seconds from :func:`prior_lattice` about that filter, the ball of ``REGIONAL_RADIUS``: a filter that
 never found its source can sit tens of metres off it, beyond the local cube's reach.
 
@@ -44,6 +45,9 @@ LOCAL_HALF_WIDTH = 3.0  # m: the local search's cube about the likeliest filter
 LOCAL_SPACING = 1.5  # m: its lattice
 LOCAL_UNTIL = 60.0  # s of growing window after which no local search runs (30 s: CV 37 of 60 tuning seeds, 60 s: 45)
 LOCAL_POOL = 16  # of its finds, at most this many join the pool (which keeps at most SEARCH_POOL)
+# s: where the growing window is longer, the local search's finds are fitted on its last LEAD_IN seconds before they
+# join the pool (a 5 s fit's basin is wide, a 45 s window's a few decimetres and mm/s wide).
+LEAD_IN = 15.0
 # m: the radius of a recovery's search ball about the likeliest filter, and s between two such searches. Spiral CTRV
 # tuning seeds 20000-20095 and 20100-20195: 152 -> 161 of 192 found, lost tracks 19 -> 8, the same time per episode
 # (20000-20095; a search at every recovery keeping every find: 1.6x the time); spiral static / CV 47 / 40 -> 48 / 39
