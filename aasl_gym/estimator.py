@@ -45,7 +45,9 @@ window holds ``search.SEARCH_WINDOW`` seconds, :mod:`aasl_gym.search` fits those
 phasor model from a lattice over where the source can be (``initializer.search_spacing``); the fits
 that explain them form a pool, which every re-seed refits beside its own fine fits (the pool's winners
 join the bank). While the growing window is short, each scheduled re-seed also searches a small
-lattice about the likeliest filter (a filter 2-4 m off can sit in a dip that explains the window).
+lattice about the likeliest filter (a filter 2-4 m off can sit in a dip that explains the window); once
+the window is longer than ``search.LEAD_IN`` seconds, those finds are fitted on its last ``LEAD_IN``
+seconds before they join the pool, which leads them into the long window's narrow basin (:meth:`_lead_in`).
 
 Recovery, at any time. When the likeliest filter's mean NIS over ``divergence_window`` exceeds
 ``divergence_nis`` (after ``reinit_cooldown``), the tracker re-seeds on the last ``reinit_window``
@@ -558,8 +560,8 @@ class SourceTracker:
 
     def _search_locally(self, time: float) -> None:
         """The phasor search about the likeliest filter on the last ``SEARCH_WINDOW`` seconds; at most
-        ``LOCAL_POOL`` of its finds join the pool. A filter 2-4 m off the source can sit in a dip that explains
-        the growing window; the truth's own dip is then within reach of a short window's fit."""
+        ``LOCAL_POOL`` of its finds join the pool, led in (:meth:`_lead_in`). A filter 2-4 m off the source can sit
+        in a dip that explains the growing window; the truth's own dip is then within reach of a short window's fit."""
         x = self.ukf.x
         lattice = local_lattice(x[0:3], LOCAL_HALF_WIDTH, LOCAL_SPACING)
         starts = np.repeat(x[None], len(lattice), axis=0)

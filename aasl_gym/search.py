@@ -49,9 +49,8 @@ LOCAL_POOL = 16  # of its finds, at most this many join the pool (which keeps at
 # join the pool (a 5 s fit's basin is wide, a 45 s window's a few decimetres and mm/s wide).
 LEAD_IN = 15.0
 # m: the radius of a recovery's search ball about the likeliest filter, and s between two such searches. Spiral CTRV
-# tuning seeds 20000-20095 and 20100-20195: 152 -> 161 of 192 found, lost tracks 19 -> 8, the same time per episode
-# (20000-20095; a search at every recovery keeping every find: 1.6x the time); spiral static / CV 47 / 40 -> 48 / 39
-# of 48; the helix 96 of 96 either way.
+# tuning seeds 20000-20095 and 20100-20195: 152 -> 161 of 192 found, lost tracks 19 -> 8, the same time per episode;
+# spiral static / CV 47 / 40 -> 48 / 39 of 48; the helix 96 of 96 either way.
 REGIONAL_RADIUS = 12.0
 REGIONAL_COOLDOWN = 20.0
 SEARCH_POOL = 64  # candidates the pool keeps between re-seeds, best first
