@@ -576,9 +576,11 @@ class SourceTracker:
         fitted on the whole window at once, a find next to the source can land in a wrong dip (spiral CTRV tuning
         seed 20160 at 97 s: the local search found a candidate 0.07 m off the source, and no fit of the 45 s window
         came within 3.5 m of it)."""
+        if not len(finds):
+            return finds
         burst = self._burst(self._window_length(time), fine=True)
         elapsed = np.abs(burst.times - burst.times[-1])
-        if not len(finds) or elapsed[0] <= LEAD_IN + 1e-9:
+        if elapsed[0] <= LEAD_IN + 1e-9:
             return finds
         recent = subsample(select_samples(burst, elapsed <= LEAD_IN + 1e-9), RIPPLE_SAMPLES)
         prior_mean, prior_sd = self._window_prior(finds)
