@@ -20,9 +20,10 @@ episode on the first ``SEARCH_WINDOW`` seconds from :func:`prior_lattice` - the 
 while its growing window is under ``LOCAL_UNTIL``, on the last seconds from :func:`local_lattice`
 about its likeliest filter. It keeps the finds as a pool that each re-seed refits on its window: a
 wrong dip that explained 5 s rarely explains 20. Where the growing window is longer than ``LEAD_IN``, the local
-finds are first fitted on its last ``LEAD_IN`` seconds, which lead them into the long window's narrow basin. A recovery (the likeliest filter turned inconsistent) searches
-the last seconds from :func:`prior_lattice` about that filter, the ball of ``REGIONAL_RADIUS``: a filter that
-never found its source can sit tens of metres off it, beyond the local cube's reach.
+finds are first fitted on its last ``LEAD_IN`` seconds, which lead them into the long window's narrow basin. A
+recovery (the likeliest filter turned inconsistent) searches the last seconds from :func:`prior_lattice` about that
+filter, the ball of ``REGIONAL_RADIUS``: a filter that never found its source can sit tens of metres off it, beyond
+the local cube's reach.
 
 After the growing window, a filter can sit in a wrong dip of its whole track's phasor fit (a CV filter on a
 parked source drifts into one), where the refit from its own state stays. :func:`search_track` looks about it

@@ -130,8 +130,8 @@ def test_the_local_search_leads_its_finds_into_the_long_windows_basin():
     """A long phasor window's basin is narrow. Sixteen finds near a still source (sd 0.1 m and 0.05 m/s off it, on its
     whole-period sheet), at 50 s of a default-world helix episode, fitted as a re-seed fits its pool on the 50 s window:
     from the finds as they are at most 2 reach the source's dip (within 0.2 m), led in through the window's last
-    ``search.LEAD_IN`` seconds first (:meth:`SourceTracker._lead_in`) at least 5 do (tuning seeds 4-8: 0-2 against
-    6-10). On a window no longer than the lead-in the finds are left as they are."""
+    ``search.LEAD_IN`` seconds first (:meth:`SourceTracker._lead_in`) at least 5 do (seeds 4-8, one draw of finds:
+    0-2 against 6-10). On a window no longer than the lead-in the finds are left as they are."""
     env = AASLEnv(EnvConfig().replace(source={"motion": "static"}), patrol="helix")
     for seed in (4, 5):
         env.reset(seed=seed)
@@ -142,15 +142,17 @@ def test_the_local_search_leads_its_finds_into_the_long_windows_basin():
         length = tracker._window_length(time)
         assert length >= 200  # the growing window holds 40 s or more (5 Hz)
         window = subsample(tracker._burst(length, fine=True), estimator.RIPPLE_SAMPLES)
-
-        def in_the_dip(states: np.ndarray) -> int:
-            fit = fit_window(window, tracker.model, states, *tracker._window_prior(states), robust=True)
-            return int(np.sum(np.linalg.norm(fit.states[:, 0:3] - info["source_position"], axis=1) < 0.2))
-
-        assert in_the_dip(finds) <= 2, seed
-        assert in_the_dip(tracker._lead_in(finds, time)) >= 5, seed
+        assert _fits_in_the_dip(tracker, window, finds, info["source_position"]) <= 2, seed
+        led_in = tracker._lead_in(finds, time)
+        assert _fits_in_the_dip(tracker, window, led_in, info["source_position"]) >= 5, seed
     tracker.window_start = time - estimator.LEAD_IN + 1.0
     assert np.array_equal(tracker._lead_in(finds, time), finds)
+
+
+def _fits_in_the_dip(tracker: estimator.SourceTracker, window, starts: np.ndarray, source: np.ndarray) -> int:
+    """How many of the fine window fits of ``window`` from ``starts`` end within 0.2 m of the ``source``."""
+    fit = fit_window(window, tracker.model, starts, *tracker._window_prior(starts), robust=True)
+    return int(np.sum(np.linalg.norm(fit.states[:, 0:3] - source, axis=1) < 0.2))
 
 
 def _finds_near_the_source(info: dict, range_offset: float, rng: np.random.Generator) -> np.ndarray:
