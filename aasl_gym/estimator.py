@@ -44,7 +44,7 @@ outside the basin of the phasor model's window fit. Once an episode, at the firs
 window holds ``search.SEARCH_WINDOW`` seconds, :mod:`aasl_gym.search` fits those seconds with the
 phasor model from a lattice over where the source can be (``initializer.search_spacing``); the fits
 that explain them form a pool, which every re-seed refits beside its own fine fits (the pool's winners
-join the bank). While the growing window is short, each scheduled re-seed also searches a small
+join the bank). While the growing window is short, each re-seed (a recovery's too) also searches a small
 lattice about the likeliest filter (a filter 2-4 m off can sit in a dip that explains the window); once
 the window is longer than ``search.LEAD_IN`` seconds, those finds are fitted on its last ``LEAD_IN``
 seconds before they join the pool, which leads them into the long window's narrow basin (:meth:`_lead_in`).
@@ -525,7 +525,7 @@ class SourceTracker:
         """The phasor search's pool (:mod:`aasl_gym.search`) carried to ``time``, for a re-seed's fine fit;
         None where there is no search or once the pool is spent. The search from the prior runs once an
         episode (:meth:`_search_prior`); while the growing window since the last start or jump is under
-        ``search.LOCAL_UNTIL``, a scheduled re-seed searches about the likeliest filter too."""
+        ``search.LOCAL_UNTIL``, a re-seed (a recovery's too) searches about the likeliest filter as well."""
         if not self.searches:
             return None
         if not self.searched and self.window_start <= self.first_time + 1e-9:
@@ -571,11 +571,13 @@ class SourceTracker:
         self.pool, self.pool_time = np.concatenate([carried, found]), time
 
     def _lead_in(self, finds: np.ndarray, time: float) -> np.ndarray:
-        """``finds`` (F, n) of a search of the last ``SEARCH_WINDOW`` seconds, fitted on the last ``search.LEAD_IN``
-        seconds of the growing window where that is longer. A short window's basins are wide, a long one's narrow:
-        fitted on the whole window at once, a find next to the source can land in a wrong dip (spiral CTRV tuning
-        seed 20160 at 97 s: the local search found a candidate 0.07 m off the source, and no fit of the 45 s window
-        came within 3.5 m of it)."""
+        """``finds`` (F, n; states at the latest sample) of a search of the last ``SEARCH_WINDOW`` seconds, fitted on
+        the last ``search.LEAD_IN`` seconds of the growing window where the growing window is longer; same order, not
+        gated (the re-seed that refits them gates them). A short window's basins are wide, a long one's narrow: fitted
+        on the whole window at once, a find next to the source can land in a wrong dip (spiral CTRV tuning seed 20160
+        at 97 s: the local search found a candidate 0.07 m off the source, and no fit of the re-seed's 45 s window
+        came within 3.5 m of the source). In a recovery the growing window is led in on, though the recovery's
+        re-seed refits the pool on its last ``filter.reinit_window`` seconds."""
         if not len(finds):
             return finds
         burst = self._burst(self._window_length(time), fine=True)

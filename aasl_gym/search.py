@@ -47,7 +47,8 @@ LOCAL_SPACING = 1.5  # m: its lattice
 LOCAL_UNTIL = 60.0  # s of growing window after which no local search runs (30 s: CV 37 of 60 tuning seeds, 60 s: 45)
 LOCAL_POOL = 16  # of its finds, at most this many join the pool (which keeps at most SEARCH_POOL)
 # s: where the growing window is longer, the local search's finds are fitted on its last LEAD_IN seconds before they
-# join the pool (a 5 s fit's basin is wide, a 45 s window's a few decimetres and mm/s wide).
+# join the pool: a 5 s fit's basin is wide, a long window's narrow (see search_track). The track search's first
+# window, and the one value tried.
 LEAD_IN = 15.0
 # m: the radius of a recovery's search ball about the likeliest filter, and s between two such searches. Spiral CTRV
 # tuning seeds 20000-20095 and 20100-20195: 152 -> 161 of 192 found, lost tracks 19 -> 8, the same time per episode;
