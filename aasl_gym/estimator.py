@@ -576,8 +576,8 @@ class SourceTracker:
         gated (the re-seed that refits them gates them). A short window's basins are wide, a long one's narrow: fitted
         on the whole window at once, a find next to the source can land in a wrong dip (spiral CTRV tuning seed 20160
         at 97 s: the local search found a candidate 0.07 m off the source, and no fit of the re-seed's 45 s window
-        came within 3.5 m of the source). In a recovery the growing window is led in on, though the recovery's
-        re-seed refits the pool on its last ``filter.reinit_window`` seconds."""
+        came within 3.5 m of the source). In a recovery, too, the finds are led in on the growing window, though the
+        recovery's re-seed refits the pool on its last ``filter.reinit_window`` seconds."""
         if not len(finds):
             return finds
         burst = self._burst(self._window_length(time), fine=True)
