@@ -110,6 +110,7 @@ from aasl_gym.initializers import (
     LCMAPInitializer,
     distinct_hypotheses,
     make_initializer,
+    recent_samples,
     robust_loss,
     select_samples,
     subsample,
@@ -580,11 +581,11 @@ class SourceTracker:
         recovery's re-seed refits the pool on its last ``filter.reinit_window`` seconds."""
         if not len(finds):
             return finds
+        # The whole growing window, cut after: the burst's R is its rows' mean, as in the re-seed's fit.
         burst = self._burst(self._window_length(time), fine=True)
-        elapsed = np.abs(burst.times - burst.times[-1])
-        if elapsed[0] <= LEAD_IN + 1e-9:
+        if burst.times[-1] - burst.times[0] <= LEAD_IN + 1e-9:
             return finds
-        recent = subsample(select_samples(burst, elapsed <= LEAD_IN + 1e-9), RIPPLE_SAMPLES)
+        recent = subsample(recent_samples(burst, LEAD_IN), RIPPLE_SAMPLES)
         prior_mean, prior_sd = self._window_prior(finds)
         return fit_window(recent, self.model, finds, prior_mean, prior_sd, robust=True).states
 

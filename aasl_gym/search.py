@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from aasl_gym.filters import MotionModel
-from aasl_gym.initializers import Burst, select_samples
+from aasl_gym.initializers import Burst, recent_samples
 from aasl_gym.motion import Box
 from aasl_gym.window import WindowFit, fit_window
 
@@ -126,9 +126,8 @@ def solve_velocity(
     rest into the whole window's narrow velocity basin (at the true positions of five default-world
     episodes: five of five, against none from rest on 5 s at once)."""
     states = starts
-    elapsed = np.abs(burst.times - burst.times[-1])
     for seconds in (*SOLVE_WINDOWS, np.inf):
-        window = select_samples(burst, elapsed <= seconds + 1e-9)
+        window = recent_samples(burst, seconds)
         solved = fit_window(window, model, states, prior_mean, held_sd, robust=True, iterations=SOLVE_ITERATIONS)
         states = solved.states
     return solved
@@ -148,10 +147,8 @@ def search_track(burst: Burst, model: MotionModel, state: np.ndarray, window_pri
     starts[:, 0:3] = np.concatenate([lattice, lattice])
     starts[len(lattice) :, 3:-2] = 0.0  # at rest: no velocity, acceleration or turn
     prior_mean, prior_sd = window_prior(starts)
-    elapsed = np.abs(burst.times - burst.times[-1])
     for seconds, keep in zip(TRACK_WINDOWS, TRACK_KEEP):
-        window = select_samples(burst, elapsed <= seconds + 1e-9)
-        fit = fit_window(window, model, starts, prior_mean, prior_sd, robust=True)
+        fit = fit_window(recent_samples(burst, seconds), model, starts, prior_mean, prior_sd, robust=True)
         folded = model.fold_states(fit.states, fit.information)[0]
         kept = distinct_best(folded, fit.costs, keep)
         starts, prior_mean = folded[kept], prior_mean[kept]
