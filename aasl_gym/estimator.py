@@ -285,8 +285,10 @@ class SourceTracker:
         self.last_track_fit: tuple[np.ndarray, float, float] | None = None
         self.gap = False  # frames were lost since the last measurement (see :meth:`_reanchor`)
         self.range_offset = 0.0  # m added to every measured RD: whole periods the track slipped by in gaps
-        self.searched = False  # the phasor search ran (once an episode)
-        self.pool = np.zeros((0, self.model.dim))  # its fine candidates, refitted at each scheduled re-seed
+        self.searched_prior = False  # the phasor search from the prior ran (once an episode)
+        # The phasor searches' fine candidates (from the prior, then the local and regional searches'), which every
+        # re-seed refits and keeps best first.
+        self.pool = np.zeros((0, self.model.dim))
         self.pool_time = np.nan  # s, when the pool's states are given
         self.last_regional_search = -np.inf  # s, a recovery's (:meth:`_search_regionally`)
         self.extra_pairs.reset()
@@ -529,11 +531,11 @@ class SourceTracker:
         ``search.LOCAL_UNTIL``, a re-seed (a recovery's too) searches about the likeliest filter as well."""
         if not self.searches:
             return None
-        if not self.searched and self.window_start <= self.first_time + 1e-9:
+        if not self.searched_prior and self.window_start <= self.first_time + 1e-9:
             if self._window_length(time) < self.search_length:
                 return None
             self._search_prior(time)
-        elif self.searched and self.bank and time - self.window_start <= LOCAL_UNTIL + 1e-9:
+        elif self.searched_prior and self.bank and time - self.window_start <= LOCAL_UNTIL + 1e-9:
             self._search_locally(time)
         return self._carried_pool(time) if len(self.pool) else None
 
@@ -546,7 +548,7 @@ class SourceTracker:
         episode's first start opened, latest first: the fits' states are given at its first sample, where the
         source is within ``source.initial_radius`` of its centre but for ``initializer.max_source_speed``
         since the episode began (a lattice a third the size of one at the window's end)."""
-        self.searched = True
+        self.searched_prior = True
         window = self._burst(self._window_length(time), fine=True)
         first = select_samples(window, slice(self.search_length - 1, None, -1))
         start = first.times[-1]
@@ -596,7 +598,7 @@ class SourceTracker:
         the recovery's re-seed refits. The local cube reaches 3 m, while a filter that never found its source
         (spiral CTRV tuning seeds) sat 4-40 m off it, where its track searches and recoveries found only nearby
         dips."""
-        if not (self.searches and self.searched) or time - self.last_regional_search < REGIONAL_COOLDOWN:
+        if not (self.searches and self.searched_prior) or time - self.last_regional_search < REGIONAL_COOLDOWN:
             return
         self.last_regional_search = time
         ball = Box(REGIONAL_RADIUS, self.region.z_min, self.region.z_max)
@@ -1068,16 +1070,7 @@ class SourceTracker:
         self._prune()
         jumped = False
         if self.recovers and self._inconsistent(self.bank[0], time):
-            # The likeliest filter stopped explaining the data: search again on the recent window, at any time.
-            # A filter on a neighbouring whole-period sheet drifts off slowly: the long window tells first.
-            logger.debug("inconsistent at t = %.1f s; re-seeding on the recent window", time)
-            jumped = self._sheets_checkable and self._check_track(time)
-            if not jumped:
-                self._search_regionally(time)
-                if self._reseed(time, rng, self.config.filter.recovery_inflation, self.reinit_length):
-                    jumped = True  # a new track: re-seed its growing window as after a start
-                    self.window_start = self.history[-min(self.reinit_length, len(self.history))][0]
-                    self.reseeding = self.reseed_length > 0
+            jumped = self._recover(time, rng)
         elif self._reseed_due(time):
             self._reseed(time, rng)
         elif self._track_check_due(time):
@@ -1085,6 +1078,20 @@ class SourceTracker:
         self.reinitializations += jumped
         ukf = self.ukf
         return TrackerOutput(True, jumped, ukf.y.copy(), np.sqrt(np.diag(ukf.S)))
+
+    def _recover(self, time: float, rng: np.random.Generator) -> bool:
+        """The likeliest filter stopped explaining the data: search again on the recent window, at any time.
+        True if the tracker jumped to a new track, whose growing window is then re-seeded as after a start."""
+        logger.debug("inconsistent at t = %.1f s; re-seeding on the recent window", time)
+        # A filter on a neighbouring whole-period sheet drifts off slowly: the long window tells first.
+        if self._sheets_checkable and self._check_track(time):
+            return True
+        self._search_regionally(time)
+        if not self._reseed(time, rng, self.config.filter.recovery_inflation, self.reinit_length):
+            return False
+        self.window_start = self.history[-min(self.reinit_length, len(self.history))][0]
+        self.reseeding = self.reseed_length > 0
+        return True
 
     @property
     def ukf(self) -> UnscentedKalmanFilter:

@@ -45,7 +45,7 @@ SEARCH_SCREEN = 0.1  # share of the lattice kept after the velocity solve (the t
 LOCAL_HALF_WIDTH = 3.0  # m: the local search's cube about the likeliest filter
 LOCAL_SPACING = 1.5  # m: its lattice
 LOCAL_UNTIL = 60.0  # s of growing window after which no local search runs (30 s: CV 37 of 60 tuning seeds, 60 s: 45)
-LOCAL_POOL = 16  # of its finds, at most this many join the pool (which keeps at most SEARCH_POOL)
+LOCAL_POOL = 16  # of a local or a regional search's finds, at most this many join the pool (at most SEARCH_POOL)
 # s: where the growing window is longer, the local search's finds are fitted on its last LEAD_IN seconds before they
 # join the pool: a 5 s fit's basin is wide, a long window's narrow (see search_track). The track search's first
 # window, and the one value tried.
@@ -55,7 +55,7 @@ LEAD_IN = 15.0
 # spiral static / CV 47 / 40 -> 48 / 39 of 48; the helix 96 of 96 either way.
 REGIONAL_RADIUS = 12.0
 REGIONAL_COOLDOWN = 20.0
-SEARCH_POOL = 64  # candidates the pool keeps between re-seeds, best first
+SEARCH_POOL = 64  # candidates the pool keeps between re-seeds (each re-seed refits it and keeps it best first)
 HELD_POSITION_SD = 0.5  # m: the position prior of the velocity solve, about the lattice point
 SOLVE_ITERATIONS = 4  # Levenberg-Marquardt iterations of that solve, on each of its windows
 SOLVE_WINDOWS = (0.6, 1.2, 2.0, 3.0)  # s: the velocity solve's shorter windows before the whole one, in turn

@@ -151,9 +151,9 @@ def test_the_local_search_leads_its_finds_into_the_long_windows_basin():
         patch.setattr(estimator.SourceTracker, "_search_recent", lambda self, starts: finds)
         tracker._search_locally(time)
     assert np.array_equal(tracker.pool[-len(finds) :], led_in)
+    assert len(tracker._lead_in(finds[:0], time)) == 0
     tracker.window_start = time - LEAD_IN + 1.0
     assert np.array_equal(tracker._lead_in(finds, time), finds)
-    assert len(tracker._lead_in(finds[:0], time)) == 0
 
 
 def _fits_in_the_dip(tracker: estimator.SourceTracker, window, starts: np.ndarray, source: np.ndarray) -> int:
