@@ -44,12 +44,16 @@ outside the basin of the phasor model's window fit. Once an episode, at the firs
 window holds ``search.SEARCH_WINDOW`` seconds, :mod:`aasl_gym.search` fits those seconds with the
 phasor model from a lattice over where the source can be (``initializer.search_spacing``); the fits
 that explain them form a pool, which every re-seed refits beside its own fine fits (the pool's winners
-join the bank). While the growing window is short, each scheduled re-seed also searches a small
-lattice about the likeliest filter (a filter 2-4 m off can sit in a dip that explains the window).
+join the bank). While the growing window is short, each re-seed (a recovery's too) also searches a small
+lattice about the likeliest filter (a filter 2-4 m off can sit in a dip that explains the window); once
+the window is longer than ``search.LEAD_IN`` seconds, those finds are fitted on its last ``LEAD_IN``
+seconds before they join the pool, which leads them into the long window's narrow basin (:meth:`_lead_in`).
 
 Recovery, at any time. When the likeliest filter's mean NIS over ``divergence_window`` exceeds
 ``divergence_nis`` (after ``reinit_cooldown``), the tracker re-seeds on the last ``reinit_window``
-seconds, the running filters competing with their covariances widened by ``filter.recovery_inflation``.
+seconds, the running filters competing with their covariances widened by ``filter.recovery_inflation``
+(once the phasor search from the prior has run, with the finds of a search of the ball about the filter, at most
+every ``search.REGIONAL_COOLDOWN`` seconds: :meth:`_search_regionally`).
 If a fresh hypothesis wins, the step reports a re-initialization and the new track re-seeds its
 growing window as after a start. The window is short on purpose: a source the filter's motion model
 does not fit (a turning source under the default straight-line filter) is found again on 10 s, not on
@@ -106,6 +110,7 @@ from aasl_gym.initializers import (
     LCMAPInitializer,
     distinct_hypotheses,
     make_initializer,
+    recent_samples,
     robust_loss,
     select_samples,
     subsample,
@@ -124,10 +129,13 @@ from aasl_gym.measurement_models import (
 from aasl_gym.motion import Box, receiver_region
 from aasl_gym.search import (
     DISTINCT,
+    LEAD_IN,
     LOCAL_HALF_WIDTH,
     LOCAL_POOL,
     LOCAL_SPACING,
     LOCAL_UNTIL,
+    REGIONAL_COOLDOWN,
+    REGIONAL_RADIUS,
     SEARCH_POOL,
     SEARCH_WINDOW,
     TRACK_SEARCH_GATE,
@@ -277,9 +285,12 @@ class SourceTracker:
         self.last_track_fit: tuple[np.ndarray, float, float] | None = None
         self.gap = False  # frames were lost since the last measurement (see :meth:`_reanchor`)
         self.range_offset = 0.0  # m added to every measured RD: whole periods the track slipped by in gaps
-        self.searched = False  # the phasor search ran (once an episode)
-        self.pool = np.zeros((0, self.model.dim))  # its fine candidates, refitted at each scheduled re-seed
+        self.searched_prior = False  # the phasor search from the prior ran (once an episode)
+        # The phasor searches' fine candidates (from the prior, then the local and regional searches'), which every
+        # re-seed refits and keeps best first.
+        self.pool = np.zeros((0, self.model.dim))
         self.pool_time = np.nan  # s, when the pool's states are given
+        self.last_regional_search = -np.inf  # s, a recovery's (:meth:`_search_regionally`)
         self.extra_pairs.reset()
         self.main_measurement: PairFrame | None = None  # this step's z and R_ac, which every hypothesis took
 
@@ -517,14 +528,14 @@ class SourceTracker:
         """The phasor search's pool (:mod:`aasl_gym.search`) carried to ``time``, for a re-seed's fine fit;
         None where there is no search or once the pool is spent. The search from the prior runs once an
         episode (:meth:`_search_prior`); while the growing window since the last start or jump is under
-        ``search.LOCAL_UNTIL``, a scheduled re-seed searches about the likeliest filter too."""
+        ``search.LOCAL_UNTIL``, a re-seed (a recovery's too) searches about the likeliest filter as well."""
         if not self.searches:
             return None
-        if not self.searched and self.window_start <= self.first_time + 1e-9:
+        if not self.searched_prior and self.window_start <= self.first_time + 1e-9:
             if self._window_length(time) < self.search_length:
                 return None
             self._search_prior(time)
-        elif self.searched and self.bank and time - self.window_start <= LOCAL_UNTIL + 1e-9:
+        elif self.searched_prior and self.bank and time - self.window_start <= LOCAL_UNTIL + 1e-9:
             self._search_locally(time)
         return self._carried_pool(time) if len(self.pool) else None
 
@@ -537,7 +548,7 @@ class SourceTracker:
         episode's first start opened, latest first: the fits' states are given at its first sample, where the
         source is within ``source.initial_radius`` of its centre but for ``initializer.max_source_speed``
         since the episode began (a lattice a third the size of one at the window's end)."""
-        self.searched = True
+        self.searched_prior = True
         window = self._burst(self._window_length(time), fine=True)
         first = select_samples(window, slice(self.search_length - 1, None, -1))
         start = first.times[-1]
@@ -545,25 +556,70 @@ class SourceTracker:
         radius = self.config.source.initial_radius + ini.max_source_speed * start
         reach = Box(radius, self.region.z_min, self.region.z_max)
         lattice = prior_lattice(reach, ini.search_spacing, np.asarray(self.config.source.initial_centre))
-        starts = np.zeros((len(lattice), self.model.dim))
-        starts[:, 0:3], starts[:, -2] = lattice, self.range_offset
+        starts = self._starts_at_rest(lattice)
         self.pool = search(first, self.model, starts, self._window_prior, RIPPLE_GATE * first.measurements.size)
         self.pool_time = start
         logger.debug("t = %.1f s: the phasor search keeps %d candidates", time, len(self.pool))
 
     def _search_locally(self, time: float) -> None:
         """The phasor search about the likeliest filter on the last ``SEARCH_WINDOW`` seconds; at most
-        ``LOCAL_POOL`` of its finds join the pool. A filter 2-4 m off the source can sit in a dip that explains
-        the growing window; the truth's own dip is then within reach of a short window's fit."""
+        ``LOCAL_POOL`` of its finds join the pool, led in (:meth:`_lead_in`). A filter 2-4 m off the source can sit
+        in a dip that explains the growing window; the truth's own dip is then within reach of a short window's fit."""
         x = self.ukf.x
         lattice = local_lattice(x[0:3], LOCAL_HALF_WIDTH, LOCAL_SPACING)
         starts = np.repeat(x[None], len(lattice), axis=0)
         starts[:, 0:3] = lattice
-        burst = self._burst(min(self.search_length, len(self.history)), fine=True)
-        found = search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
-        found = found[:LOCAL_POOL]
+        found = self._lead_in(self._search_recent(starts)[:LOCAL_POOL], time)
         carried = self._carried_pool(time, SEARCH_POOL - len(found)) if len(self.pool) else found[:0]
         self.pool, self.pool_time = np.concatenate([carried, found]), time
+
+    def _lead_in(self, finds: np.ndarray, time: float) -> np.ndarray:
+        """``finds`` (F, n; states at the latest sample) of a search of the last ``SEARCH_WINDOW`` seconds, fitted on
+        the last ``search.LEAD_IN`` seconds of the growing window where the growing window is longer; same order, not
+        gated (the re-seed that refits them gates them). A short window's basins are wide, a long one's narrow: fitted
+        on the whole window at once, a find next to the source can land in a wrong dip (spiral CTRV tuning seed 20160
+        at 97 s: the local search found a candidate 0.07 m off the source, and no fit of the re-seed's 45 s window
+        came within 3.5 m of the source). In a recovery, too, the finds are led in on the growing window, though the
+        recovery's re-seed refits the pool on its last ``filter.reinit_window`` seconds."""
+        if not len(finds):
+            return finds
+        # The whole growing window, cut after: the burst's R is its rows' mean, as in the re-seed's fit.
+        burst = self._burst(self._window_length(time), fine=True)
+        if burst.times[-1] - burst.times[0] <= LEAD_IN + 1e-9:
+            return finds
+        recent = subsample(recent_samples(burst, LEAD_IN), RIPPLE_SAMPLES)
+        prior_mean, prior_sd = self._window_prior(finds)
+        return fit_window(recent, self.model, finds, prior_mean, prior_sd, robust=True).states
+
+    def _search_regionally(self, time: float) -> None:
+        """In a recovery, the phasor search of the last ``SEARCH_WINDOW`` seconds from a lattice (at rest) filling
+        the ball of ``search.REGIONAL_RADIUS`` about the likeliest filter, at most every ``search.REGIONAL_COOLDOWN``
+        seconds and once the search from the prior has run; at most ``LOCAL_POOL`` of its finds lead the pool that
+        the recovery's re-seed refits. The local cube reaches 3 m, while a filter that never found its source
+        (spiral CTRV tuning seeds) sat 4-40 m off it, where its track searches and recoveries found only nearby
+        dips."""
+        if not (self.searches and self.searched_prior) or time - self.last_regional_search < REGIONAL_COOLDOWN:
+            return
+        self.last_regional_search = time
+        ball = Box(REGIONAL_RADIUS, self.region.z_min, self.region.z_max)
+        starts = self._starts_at_rest(prior_lattice(ball, self.config.initializer.search_spacing, self.ukf.x[0:3]))
+        found = self._search_recent(starts)
+        carried = self._carried_pool(time) if len(self.pool) else found[:0]
+        self.pool = np.concatenate([found[:LOCAL_POOL], carried])[:SEARCH_POOL]
+        self.pool_time = time
+
+    def _search_recent(self, starts: np.ndarray) -> np.ndarray:
+        """The phasor search (:func:`~aasl_gym.search.search`) of the last ``SEARCH_WINDOW`` seconds from
+        ``starts`` (S, n) at the latest sample: its fine candidates there, best first."""
+        burst = self._burst(min(self.search_length, len(self.history)), fine=True)
+        return search(burst, self.model, starts, self._window_prior, RIPPLE_GATE * burst.measurements.size)
+
+    def _starts_at_rest(self, positions: np.ndarray) -> np.ndarray:
+        """Search starts (N, n) at ``positions`` (N, 3; m), at rest, the RD offset at the track's whole-period
+        ``range_offset`` (the searches' velocity solve finds the motion)."""
+        starts = np.zeros((len(positions), self.model.dim))
+        starts[:, 0:3], starts[:, -2] = positions, self.range_offset
+        return starts
 
     @property
     def _sheets_checkable(self) -> bool:
@@ -1014,14 +1070,7 @@ class SourceTracker:
         self._prune()
         jumped = False
         if self.recovers and self._inconsistent(self.bank[0], time):
-            # The likeliest filter stopped explaining the data: search again on the recent window, at any time.
-            # A filter on a neighbouring whole-period sheet drifts off slowly: the long window tells first.
-            logger.debug("inconsistent at t = %.1f s; re-seeding on the recent window", time)
-            jumped = self._sheets_checkable and self._check_track(time)
-            if not jumped and self._reseed(time, rng, self.config.filter.recovery_inflation, self.reinit_length):
-                jumped = True  # a new track: re-seed its growing window as after a start
-                self.window_start = self.history[-min(self.reinit_length, len(self.history))][0]
-                self.reseeding = self.reseed_length > 0
+            jumped = self._recover(time, rng)
         elif self._reseed_due(time):
             self._reseed(time, rng)
         elif self._track_check_due(time):
@@ -1029,6 +1078,20 @@ class SourceTracker:
         self.reinitializations += jumped
         ukf = self.ukf
         return TrackerOutput(True, jumped, ukf.y.copy(), np.sqrt(np.diag(ukf.S)))
+
+    def _recover(self, time: float, rng: np.random.Generator) -> bool:
+        """The likeliest filter stopped explaining the data: search again on the recent window, at any time.
+        True if the tracker jumped to a new track, whose growing window is then re-seeded as after a start."""
+        logger.debug("inconsistent at t = %.1f s; re-seeding on the recent window", time)
+        # A filter on a neighbouring whole-period sheet drifts off slowly: the long window tells first.
+        if self._sheets_checkable and self._check_track(time):
+            return True
+        self._search_regionally(time)
+        if not self._reseed(time, rng, self.config.filter.recovery_inflation, self.reinit_length):
+            return False
+        self.window_start = self.history[-min(self.reinit_length, len(self.history))][0]
+        self.reseeding = self.reseed_length > 0
+        return True
 
     @property
     def ukf(self) -> UnscentedKalmanFilter:

@@ -287,6 +287,11 @@ def select_samples(burst: Burst, index: np.ndarray | slice) -> Burst:
     return replace(burst, **{name: getattr(burst, name)[index] for name in per_sample})
 
 
+def recent_samples(burst: Burst, seconds: float) -> Burst:
+    """The burst's samples taken within ``seconds`` (s) of its last one (all of them for ``np.inf``)."""
+    return select_samples(burst, np.abs(burst.times - burst.times[-1]) <= seconds + 1e-9)
+
+
 def periodic_residual(residual: np.ndarray, burst: Burst) -> np.ndarray:
     """RD residuals (..., 2) modulo the burst's ``residual_period``, if it has one (in place)."""
     if burst.residual_period is not None:

@@ -10,9 +10,9 @@ from scipy.optimize import least_squares
 from aasl_gym import estimator
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
-from aasl_gym.initializers import Burst
+from aasl_gym.initializers import Burst, subsample
 from aasl_gym.measurement_models import direct_measurement
-from aasl_gym.search import TRACK_SEARCH_GATE
+from aasl_gym.search import LEAD_IN, TRACK_SEARCH_GATE
 from aasl_gym.window import WindowFit, fit_window
 
 STUDY = EnvConfig().replace(world={"reflections": False}, filter={"multipath": "none"}, source={"motion": "static"})
@@ -102,26 +102,99 @@ def test_the_tracker_recovers_a_lost_source_late_in_the_episode():
     window again and is back below 1 m within 30 s (tuning seeds 0-5: 14-32 s, one ended 1.01 m off),
     there to stay."""
 
-    def lost(info: dict) -> np.ndarray:
-        state = np.zeros(8)
-        state[0:3] = info["source_position"] + np.array([6.0, -6.0, 5.0])
-        state[-2] = info["measurement"][0] - info["measurement_true"][0]
-        return state
-
     env = AASLEnv(STUDY, patrol="helix")
     for seed in range(3):
-        errors = _errors_after_replacing_the_bank(env, seed, 350, lost, 200)
+        errors = _errors_after_replacing_the_bank(env, seed, 350, _ten_metres_off, 200)
         assert max(errors[150:]) < 1.0, seed
 
 
-def _errors_after_replacing_the_bank(env: AASLEnv, seed: int, steps: int, make_state, after: int) -> list[float]:
+def test_a_recovery_in_the_default_world_searches_the_ball_about_a_lost_filter():
+    """The default world (signal mode, reflections, the phasor filter), a CV source on the helix. At 70 s the
+    bank is replaced by one confident filter 10 m off the source, and the tracker forgets its pool, its last
+    whole-track fit and when it last searched the ball, as if it had never found the source. The recovery's
+    search of the ball about the filter (:meth:`SourceTracker._search_regionally`) finds it again: within 1 m
+    in 30 s, there to stay (tuning seeds 10000, 10001 and 10002: 15, 10 and 30 s). Without it nothing searches
+    beyond 3 m of the filter (the local and track searches' cubes) and the track is lost (38-120 m off at
+    120 s)."""
+    env = AASLEnv(EnvConfig().replace(source={"motion": "cv"}), patrol="helix")
+    for seed in (10000, 10001):
+        errors = _errors_after_replacing_the_bank(env, seed, 350, _ten_metres_off, 250, forget=True)
+        assert max(errors[150:]) < 1.0, seed
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(estimator.SourceTracker, "_search_regionally", lambda self, time: None)
+        errors = _errors_after_replacing_the_bank(env, 10000, 350, _ten_metres_off, 250, forget=True)
+        assert min(errors[150:]) > 5.0
+
+
+def test_the_local_search_leads_its_finds_into_the_long_windows_basin():
+    """A long phasor window's basin is narrow. Sixteen synthetic finds near a still source (sd 0.1 m and 0.05 m/s off
+    it, on its whole-period sheet) at 50 s of a default-world helix episode are fitted as a re-seed fits its pool, on
+    the growing window of 40-50 s. From the finds as they are, at most 2 reach the source's dip (within 0.2 m). Led in
+    through the window's last ``search.LEAD_IN`` seconds first (:meth:`SourceTracker._lead_in`), at least 5 do (seeds
+    4-8, one draw of finds: 0-2 against 6-10; this test runs 4 and 5). The local search puts its finds into the pool
+    led in, and on a window no longer than the lead-in it leaves them as they are."""
+    env = AASLEnv(EnvConfig().replace(source={"motion": "static"}), patrol="helix")
+    for seed in (4, 5):
+        env.reset(seed=seed)
+        for _ in range(250):
+            info = env.step(np.zeros(3))[4]
+        tracker, time = env.tracker, info["time"]
+        finds = _finds_near_the_source(info, tracker, np.random.default_rng(seed))
+        length = tracker._window_length(time)
+        assert length >= 200  # the growing window holds 40 s or more (5 Hz)
+        window = subsample(tracker._burst(length, fine=True), estimator.RIPPLE_SAMPLES)
+        unled = _fits_in_the_dip(tracker, window, finds, info["source_position"])
+        assert unled <= 2, f"seed {seed}: {unled} finds reach the dip unled; the scenario no longer needs a lead-in"
+        led_in = tracker._lead_in(finds, time)
+        assert _fits_in_the_dip(tracker, window, led_in, info["source_position"]) >= 5, seed
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(estimator.SourceTracker, "_search_recent", lambda self, starts: finds)
+        tracker._search_locally(time)
+    assert np.array_equal(tracker.pool[-len(finds) :], led_in)
+    assert len(tracker._lead_in(finds[:0], time)) == 0
+    tracker.window_start = time - LEAD_IN + 1.0
+    assert np.array_equal(tracker._lead_in(finds, time), finds)
+
+
+def _fits_in_the_dip(tracker: estimator.SourceTracker, window, starts: np.ndarray, source: np.ndarray) -> int:
+    """How many of the fine window fits of ``window`` from ``starts`` end within 0.2 m of the ``source``."""
+    fit = fit_window(window, tracker.model, starts, *tracker._window_prior(starts), robust=True)
+    return int(np.sum(np.linalg.norm(fit.states[:, 0:3] - source, axis=1) < 0.2))
+
+
+def _finds_near_the_source(info: dict, tracker: estimator.SourceTracker, rng: np.random.Generator) -> np.ndarray:
+    """Sixteen states of the tracker's model about a still source: position sd 0.1 m, velocity sd 0.05 m/s, on the
+    measurement's whole-period sheet."""
+    finds = np.zeros((16, tracker.model.dim))
+    finds[:, 0:3] = info["source_position"] + rng.normal(0.0, 0.1, (16, 3))
+    finds[:, 3:6] = rng.normal(0.0, 0.05, (16, 3))
+    finds[:, -2] = info["measurement"][0] - info["measurement_true"][0] + tracker.range_offset
+    return finds
+
+
+def _ten_metres_off(info: dict) -> np.ndarray:
+    """A straight-line filter's state 9.8 m off the source, at rest, on the measurement's whole-period sheet."""
+    state = np.zeros(8)
+    state[0:3] = info["source_position"] + np.array([6.0, -6.0, 5.0])
+    state[-2] = info["measurement"][0] - info["measurement_true"][0]
+    return state
+
+
+def _errors_after_replacing_the_bank(
+    env: AASLEnv, seed: int, steps: int, make_state, after: int, forget: bool = False
+) -> list[float]:
     """Position errors over ``after`` steps once, after ``steps`` steps of the seeded episode, the bank
-    was replaced by one confident straight-line filter at ``make_state(info)``."""
+    was replaced by one confident straight-line filter at ``make_state(info)`` (and, if ``forget``, the
+    tracker's phasor-search pool, last whole-track fit and last regional search were dropped)."""
     env.reset(seed=seed)
     for _ in range(steps):
         info = env.step(np.zeros(3))[4]
     confident = np.diag([0.2**2] * 3 + [0.05**2] * 3 + [0.02**2] * 2)
     env.tracker.bank = [env.tracker._hypothesis(make_state(info), confident, 0.0, info["time"])]
+    if forget:
+        env.tracker.pool = env.tracker.pool[:0]
+        env.tracker.last_track_fit = None
+        env.tracker.last_regional_search = -np.inf
     return [env.step(np.zeros(3))[4]["position_error"] for _ in range(after)]
 
 
@@ -360,16 +433,18 @@ def test_a_scheduled_reseed_searches_afresh_only_where_no_filter_explains_the_wi
 
 def test_the_track_search_leaves_a_wrong_dip_of_the_whole_track():
     """The default world, the spiral, a parked source under the straight-line filter (tuning seed 20015).
-    Without the track search the filter drifts into a wrong dip of its whole track's phasor fit: at 88 s it
-    is more than 0.7 m off, and the track refit from its own state stays there, explaining the track poorly
-    (robust cost per residual above ``TRACK_SEARCH_GATE``). With ``filter.track_search`` the same refit
-    searches about the filter and adopts a fit within 0.1 m of the source; a search whose finds all cost
-    more than the refit leaves the refit's fit."""
+    Without the track search (and without the local search's lead-in, which keeps this filter out of it) the
+    filter drifts into a wrong dip of its whole track's phasor fit: at 88 s it is more than 0.7 m off, and the
+    track refit from its own state stays there, explaining the track poorly (robust cost per residual above
+    ``TRACK_SEARCH_GATE``). With ``filter.track_search`` the same refit searches about the filter and adopts a
+    fit within 0.1 m of the source; a search whose finds all cost more than the refit leaves the refit's fit."""
     config = EnvConfig().replace(source={"motion": "static"}, filter={"track_search": False})
     env = AASLEnv(config, patrol="spiral")
-    env.reset(seed=20015)
-    for _ in range(440):
-        info = env.step(np.zeros(3))[4]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(estimator, "LEAD_IN", np.inf)
+        env.reset(seed=20015)
+        for _ in range(440):
+            info = env.step(np.zeros(3))[4]
     assert info["position_error"] > 0.7 and env.tracker.bank[0].resolved
     burst = env.tracker._burst(env.tracker._samples_since(env.tracker.window_start), fine=True)
     state = env.tracker.ukf.x.copy()

@@ -57,6 +57,14 @@ def window_prior(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, sd
 
 
+def test_a_search_without_starts_finds_nothing():
+    """A lattice coarser than its ball has no points: the search returns no candidates, shaped as states."""
+    burst, model = phasor_window(np.random.default_rng(0))
+    found = search(burst, model, np.zeros((0, START.size)), window_prior, 3.0 * burst.measurements.size)
+    assert found.shape == (0, START.size)
+    assert len(prior_lattice(Box(12.0, -60.0, -2.0), 30.0, np.zeros(3))) == 0  # such a lattice
+
+
 @pytest.mark.parametrize("latest_first", [False, True], ids=["states-at-end", "states-at-start"])
 def test_a_start_in_the_truths_basin_is_kept(latest_first):
     """The local search's form: a lattice of 1.5 m about the source, every start carrying a velocity
