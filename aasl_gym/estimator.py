@@ -87,6 +87,7 @@ into the slab (:class:`~aasl_gym.filters.MotionModel`).
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -386,8 +387,11 @@ class SourceTracker:
 
     def _reachable(self, time: float) -> Box:
         """Where the source can be at ``time``: the start region grown by the fastest plausible travel."""
-        growth = self.config.initializer.max_source_speed * (time - self.first_time)
-        return replace(self.region, radius=self.region.radius + growth)
+        return replace(self.region, radius=self._reachable_radius(time))
+
+    def _reachable_radius(self, time: float) -> float:
+        """m, the radius of :meth:`_reachable` (what every update's plausibility test needs of it)."""
+        return self.region.radius + self.config.initializer.max_source_speed * (time - self.first_time)
 
     def _lcmap_at(self, time: float) -> LCMAPInitializer:
         """LC-MAP for a re-start or re-seed at ``time``, bounded by where the source can be by then."""
@@ -856,12 +860,12 @@ class SourceTracker:
         if not np.all(np.isfinite(ukf.x)):
             return True
         p, v = ukf.x[0:3], self.model.velocity(ukf.x)
-        region = self._reachable(time)
         slack = 10.0  # m beyond the reachable region before an estimate counts as impossible
+        # Scalar math: this runs on every hypothesis at every update.
         return bool(
-            np.hypot(p[0], p[1]) > region.radius + slack
-            or not region.z_min - slack <= p[2] <= region.z_max + slack
-            or np.linalg.norm(v) > 2 * self.config.initializer.max_source_speed
+            math.hypot(p[0], p[1]) > self._reachable_radius(time) + slack
+            or not self.region.z_min - slack <= p[2] <= self.region.z_max + slack
+            or math.sqrt(v @ v) > 2 * self.config.initializer.max_source_speed
         )
 
     def _inconsistent(self, hypothesis: Hypothesis, time: float) -> bool:

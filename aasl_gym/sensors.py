@@ -34,7 +34,7 @@ from aasl_gym.synthesis import FrameFault
 
 def received(z: np.ndarray) -> bool:
     """Whether a step's [RD, RRD] ``z`` is a frame: a lost one (dropped, unheard, or none yet) is NaN."""
-    return bool(np.all(np.isfinite(z)))
+    return bool(np.isfinite(z).all())  # the method, not np.all: this runs several times a step
 
 
 @runtime_checkable

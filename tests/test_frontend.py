@@ -332,6 +332,18 @@ def test_saturation_is_detected_on_both_paths(rng):
         assert not frontend.saturated(samples)
         for level in (0.1, 0.5, 0.9):
             assert frontend.saturated(synthesis.clipped(samples, level))
+            # Channels stacked: one clipped channel is enough, whichever row it is.
+            assert frontend.saturated(np.array([samples, synthesis.clipped(samples, level)]))
+            assert frontend.saturated(np.array([synthesis.clipped(samples, level), samples]))
+        assert not frontend.saturated(np.array([samples, samples[::-1]]))
+
+
+def test_the_detectors_median_is_numpys(rng):
+    """The detection statistic's own median (a partition, for speed) against ``np.median``, bit for bit, over
+    odd and even bin counts and stacked channels."""
+    for count in (1, 2, 7, 160, 161):
+        values = rng.exponential(1.0, (3, count))
+        np.testing.assert_array_equal(frontend._median(values), np.median(values, axis=-1))
 
 
 def test_further_pairs_share_the_robots_recording(rng):
