@@ -3,6 +3,7 @@
 import json
 import sys
 
+import numpy as np
 import pytest
 
 import evaluate
@@ -42,6 +43,8 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     assert opening.startswith("In short: Static sources:") and "of 1 episode " in opening and "+-98 points" in opening
     results = json.loads((out / "results.json").read_text())
     assert set(results) >= {"command", "config", "episodes", "summary"}
+    # Where it ran: a seed's episode is the same to the last bit only on one machine and build.
+    assert results["platform"]["numpy"] == np.__version__ and results["platform"]["processor"]
     assert len(results["episodes"]) == 4
     assert "trajectory" not in results["episodes"][0]  # the paths go into the plots, not the results
     row = results["episodes"][0]

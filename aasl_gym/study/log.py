@@ -4,14 +4,44 @@ finished episode, appended and flushed as each one arrives."""
 from __future__ import annotations
 
 import json
+import platform
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import scipy
+
 from aasl_gym.io import atomic_write_text
 
 Row = dict[str, Any]  # one episode's results (``agents.rollout``'s keys), as the log keeps them
+
+
+def platform_record() -> dict[str, str]:
+    """Where a report was written: Python, NumPy and SciPy versions and the processor. A seed's episode is the
+    same to the last bit on one machine and build; on another CPU, NumPy's vectorized math (its SIMD kernels) and
+    the BLAS can differ in the last bit, and the tracker's decisions amplify that (rows resumed from an earlier
+    run may come from another machine)."""
+    return {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "machine": platform.machine(),
+        "processor": _processor_name(),
+    }
+
+
+def _processor_name() -> str:
+    """The CPU's model name (Linux's /proc/cpuinfo), else what :func:`platform.processor` says."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as cpuinfo:
+            for line in cpuinfo:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
 
 
 class LogMismatch(ValueError):

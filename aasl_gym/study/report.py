@@ -8,7 +8,7 @@ from pathlib import Path
 
 from aasl_gym.config import EnvConfig, to_dict
 from aasl_gym.io import atomic_write_json, atomic_write_text
-from aasl_gym.study.log import Row
+from aasl_gym.study.log import Row, platform_record
 
 SUMMARY_HEADER = [
     "| policy | initializer | motion | n | success 0.5 m | success 1 m | success 3 m | mean conv. time (s) [95 % CI] "
@@ -143,8 +143,8 @@ def write_report(
 def write_results(
     path: Path, command: str, config: EnvConfig, rows: list[Row], summary: list[Row], comparisons: dict[str, list[Row]]
 ) -> None:
-    """``results.json``, atomically: ``{"command", "config", "episodes", "summary", "comparisons"}``
-    (the schema of the project's spec; rows without their recorded paths)."""
+    """``results.json``, atomically: ``{"command", "config", "episodes", "summary", "comparisons", "platform"}``
+    (the schema of the project's spec; rows without their recorded paths; ``platform``: where it was written)."""
     atomic_write_json(
         path,
         {
@@ -153,6 +153,7 @@ def write_results(
             "episodes": rows,
             "summary": summary,
             "comparisons": comparisons,
+            "platform": platform_record(),
         },
     )
 
