@@ -20,9 +20,9 @@ Row = dict[str, Any]  # one episode's results (``agents.rollout``'s keys), as th
 
 def platform_record() -> dict[str, str]:
     """Where a report was written: Python, NumPy and SciPy versions and the processor. A seed's episode is the
-    same to the last bit on one machine and build; on another CPU, NumPy's vectorized math (its SIMD kernels) and
-    the BLAS can differ in the last bit, and the tracker's decisions amplify that (rows resumed from an earlier
-    run may come from another machine)."""
+    same to the last bit on one machine and build; on another (CPU, or builds of NumPy and its BLAS) the
+    vectorized math can round differently in the last bit, and the tracker's decisions amplify that (rows
+    resumed from an earlier run may come from another machine)."""
     return {
         "python": platform.python_version(),
         "numpy": np.__version__,
