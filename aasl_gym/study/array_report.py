@@ -10,10 +10,10 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from aasl_gym.config import to_dict
-from aasl_gym.io import atomic_write_json, atomic_write_text
+from aasl_gym.io import atomic_write_text
 from aasl_gym.scenarios import scenario_description
 from aasl_gym.study.array_comparison import APERTURE_WAVELENGTHS, SWEEP_STRIDE, summarize, summarize_sweep
-from aasl_gym.study.log import Row, platform_record
+from aasl_gym.study.log import Row, write_results_json
 from aasl_gym.study.paper import Study
 from aasl_gym.study.plots import save_png
 
@@ -103,8 +103,7 @@ def write_array_comparison(
     names = [save_png(_sweep_figure(summary, sweep, sd), out, "arrays.png", DPI)] if plots else []
     results: dict[str, Any] = {"command": command, "study": study.name, "scenario": study.scenario, "motion": motion}
     results |= {"config": to_dict(config), "trials": rows, "summary": summary, "sweep": sweep}
-    results["platform"] = platform_record()
-    atomic_write_json(out / "results.json", results)
+    write_results_json(out / "results.json", results)
     aperture = APERTURE_WAVELENGTHS * config.wavelength
     lines = [
         "# The reference paper's comparison with fixed arrays",

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import scipy
 
-from aasl_gym.io import atomic_write_text
+from aasl_gym.io import atomic_write_json, atomic_write_text
 
 Row = dict[str, Any]  # one episode's results (``agents.rollout``'s keys), as the log keeps them
 
@@ -30,6 +30,11 @@ def platform_record() -> dict[str, str]:
         "machine": platform.machine(),
         "processor": _processor_name(),
     }
+
+
+def write_results_json(path: str | Path, results: dict[str, Any]) -> None:
+    """A study's ``results.json``, atomically, with the :func:`platform_record` of where it was written."""
+    atomic_write_json(path, results | {"platform": platform_record()})
 
 
 def _processor_name() -> str:

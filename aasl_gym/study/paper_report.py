@@ -11,9 +11,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from aasl_gym.config import EnvConfig, to_dict
-from aasl_gym.io import atomic_write_json, atomic_write_text
+from aasl_gym.io import atomic_write_text
 from aasl_gym.scenarios import scenario_config, scenario_description
-from aasl_gym.study.log import Row, platform_record
+from aasl_gym.study.log import Row, write_results_json
 from aasl_gym.study.paper import (
     DIVERGENCE_RMSE,
     LAKE_MOTIONS,
@@ -316,8 +316,7 @@ def write_study(
     variants = [{"name": v.name, "labels": v.labels, "changes": v.changes} for v in study.variants]
     results: dict[str, Any] = {"command": command, "study": study.name, "scenario": study.scenario, "motion": motion}
     results |= {"config": to_dict(config), "variants": variants, "trials": rows, "summary": summary}
-    results["platform"] = platform_record()
-    atomic_write_json(out / "results.json", results)
+    write_results_json(out / "results.json", results)
     lines = [f"# Reference paper ablation: {study.name}", "", f"Command: `{command}`", ""]
     lines += _setup(study, motion, config, seeds) + ["", *sections[study.name]()]
     lines += [line for name in names for line in ("", f"![{name}]({name})")]
@@ -371,8 +370,7 @@ def write_model_error(
     out.mkdir(parents=True, exist_ok=True)
     names = [save_png(_model_error_figure(config, samples), out, "model_error.png", DPI)] if plots else []
     results = {"command": command, "samples": count, "rd_threshold": beyond, "statistics": stats}
-    results["platform"] = platform_record()
-    atomic_write_json(out / "results.json", results)
+    write_results_json(out / "results.json", results)
     lines = [
         "# Where the first-order model breaks",
         "",

@@ -7,8 +7,8 @@ import math
 from pathlib import Path
 
 from aasl_gym.config import EnvConfig, to_dict
-from aasl_gym.io import atomic_write_json, atomic_write_text
-from aasl_gym.study.log import Row, platform_record
+from aasl_gym.io import atomic_write_text
+from aasl_gym.study.log import Row, write_results_json
 
 SUMMARY_HEADER = [
     "| policy | initializer | motion | n | success 0.5 m | success 1 m | success 3 m | mean conv. time (s) [95 % CI] "
@@ -145,7 +145,7 @@ def write_results(
 ) -> None:
     """``results.json``, atomically: ``{"command", "config", "episodes", "summary", "comparisons", "platform"}``
     (the schema of the project's spec; rows without their recorded paths; ``platform``: where it was written)."""
-    atomic_write_json(
+    write_results_json(
         path,
         {
             "command": command,
@@ -153,7 +153,6 @@ def write_results(
             "episodes": rows,
             "summary": summary,
             "comparisons": comparisons,
-            "platform": platform_record(),
         },
     )
 
