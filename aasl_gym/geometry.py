@@ -19,6 +19,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from aasl_gym import kernels
+
 ZERO3 = np.zeros(3)
 
 
@@ -134,9 +136,9 @@ class _ImagePath(NamedTuple):
 
 
 class _ReceiverPaths(NamedTuple):
-    """What the phasor model needs at one receiver, in real arithmetic (this runs on every window-fit
-    trial state at every sample, where it dominates the tracker's cost): the offset from the receiver
-    to the source (..., 3), the direct range d (m), each image's vertical offset, range r_i (m) and term
+    """What the phasor model with its rates (:func:`phasor_multipath`) needs at one receiver, in real
+    arithmetic (the RD alone and its gradients are compiled: :mod:`aasl_gym.kernels`): the offset from the
+    receiver to the source (..., 3), the direct range d (m), each image's vertical offset, range r_i (m) and term
     T_i = a_i (d / r_i) exp(-j k (r_i - d)) as real and imaginary parts, and the multipath factor
     M = 1 + sum_i T_i likewise. The images share the direct path's horizontal offset."""
 
@@ -235,49 +237,11 @@ def phasor_range_difference(
     bed_reflection: float,
     wavenumber: float,
 ) -> np.ndarray:
-    """The apparent RD (m) of :func:`phasor_multipath` alone, to the last bit, without the rates: what a
-    frame's RD track is made of (its slope is the frame's RRD), at about three quarters of the cost."""
+    """The apparent RD (m) of :func:`phasor_multipath` alone, without the rates: what a frame's RD track is
+    made of (its slope is the frame's RRD). Compiled (:func:`aasl_gym.kernels.phasor_paths`): it agrees
+    with :func:`phasor_multipath` to a few units in the last place."""
     gains = (surface_reflection, bed_reflection)
-    mobile_paths, fixed_paths = (_receiver_paths(source, r, water_depth, gains, wavenumber) for r in (mobile, fixed))
-    return _apparent_range_difference(mobile_paths, fixed_paths, wavenumber)
-
-
-def _apparent_range_difference(mobile: _ReceiverPaths, fixed: _ReceiverPaths, wavenumber: float) -> np.ndarray:
-    """RD_app = (d_m - d_f) + (phi_f - phi_m) / k from the two receivers' paths."""
-    return (mobile.direct - fixed.direct) + (fixed.phase - mobile.phase) / wavenumber
-
-
-def _phase_gradient_scales(paths: _ReceiverPaths, wavenumber: float) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The scalars A and B_i of d phi (phi the phase of M) at one receiver: with w_i = T_i / M,
-    A = sum_i (Im w_i / d + k Re w_i) and B_i = Im w_i / r_i + k Re w_i, the source's gradient is
-    A u - sum_i B_i S u_i and the receiver's -A u + sum_i B_i u_i (u, u_i the unit vectors from the
-    receiver to the source and its images, S the mirror diag(1, 1, -1))."""
-    power = paths.factor_real**2 + paths.factor_imag**2
-    direct_scale = np.zeros(np.shape(paths.direct))
-    image_scales = []
-    for image in paths.images:
-        weight_real = (image.term_real * paths.factor_real + image.term_imag * paths.factor_imag) / power
-        weight_imag = (image.term_imag * paths.factor_real - image.term_real * paths.factor_imag) / power
-        direct_scale = direct_scale + weight_imag / paths.direct + wavenumber * weight_real
-        image_scales.append(weight_imag / image.range + wavenumber * weight_real)
-    return direct_scale, image_scales
-
-
-def _apparent_range_gradient(paths: _ReceiverPaths, wavenumber: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The gradient of one receiver's apparent range d - phi / k, in parts: the scale of the horizontal
-    offset (source minus receiver), the direct path's vertical part and the images' vertical part. With
-    respect to the source it is (offset_xy * scale, direct + images); with respect to the receiver
-    (-offset_xy * scale, -direct + images): every horizontal term and the direct path's vertical one
-    change sign, but an image's vertical offset (-z_s - 2 n D - z_r) falls with the receiver's z as
-    with the source's."""
-    direct_scale, image_scales = _phase_gradient_scales(paths, wavenumber)
-    inverse_direct = 1.0 / paths.direct
-    # The images share the direct path's horizontal offset, so one scalar serves all three horizontally.
-    image_horizontal = sum(b / image.range for b, image in zip(image_scales, paths.images))
-    image_vertical = sum(b * image.vertical / image.range for b, image in zip(image_scales, paths.images))
-    horizontal_scale = inverse_direct - (direct_scale * inverse_direct - image_horizontal) / wavenumber
-    direct_vertical = paths.offset[..., 2] * (inverse_direct - direct_scale * inverse_direct / wavenumber)
-    return horizontal_scale, direct_vertical, -image_vertical / wavenumber
+    return kernels.phasor_paths(source, mobile, fixed, water_depth, *gains, wavenumber)[0]
 
 
 def phasor_range_difference_linearized(
@@ -289,8 +253,8 @@ def phasor_range_difference_linearized(
     bed_reflection: float,
     wavenumber: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`phasor_range_difference` (m, to the last bit) and its gradients (..., 3) with respect to the
-    source position and the mobile hydrophone's position, from one set of multipath factors.
+    """:func:`phasor_range_difference` (m) and its gradients (..., 3) with respect to the source position
+    and the mobile hydrophone's position, from one set of multipath factors.
 
     RD_app = (d_m - d_f) + (phi_f - phi_m) / k with phi the phase of a receiver's multipath factor
     M = 1 + sum_i T_i, T_i = a_i (d / r_i) exp(-j k (r_i - d)). A small move changes log T_i by
@@ -298,21 +262,11 @@ def phasor_range_difference_linearized(
     source dd = u . dp and dr_i = (S u_i) . dp (S the image's mirror, diag(1, 1, -1)); with respect to
     the receiver dd = -u . dr and dr_i = -u_i . dr (u, u_i the unit vectors from the receiver). The
     images share the direct path's horizontal offset, so each gradient's horizontal part is that offset
-    times one scalar (:func:`_apparent_range_gradient`).
+    times one scalar. Written as one compiled loop (:func:`aasl_gym.kernels.phasor_paths`): this runs on
+    every window-fit trial state at every sample, where it dominated the tracker's cost.
     """
     gains = (surface_reflection, bed_reflection)
-    mobile_paths, fixed_paths = (_receiver_paths(source, r, water_depth, gains, wavenumber) for r in (mobile, fixed))
-    range_difference = _apparent_range_difference(mobile_paths, fixed_paths, wavenumber)
-    scale_m, direct_m, images_m = _apparent_range_gradient(mobile_paths, wavenumber)
-    scale_f, direct_f, images_f = _apparent_range_gradient(fixed_paths, wavenumber)
-    offset_m, offset_f = mobile_paths.offset, fixed_paths.offset
-    source_gradient = np.empty(np.broadcast_shapes(offset_m.shape, offset_f.shape))
-    source_gradient[..., 0:2] = offset_m[..., 0:2] * scale_m[..., None] - offset_f[..., 0:2] * scale_f[..., None]
-    source_gradient[..., 2] = (direct_m + images_m) - (direct_f + images_f)
-    mobile_gradient = np.empty(offset_m.shape)
-    mobile_gradient[..., 0:2] = -offset_m[..., 0:2] * scale_m[..., None]
-    mobile_gradient[..., 2] = -direct_m + images_m
-    return range_difference, source_gradient, mobile_gradient
+    return kernels.phasor_paths(source, mobile, fixed, water_depth, *gains, wavenumber)
 
 
 def phasor_multipath(

@@ -14,11 +14,10 @@ the SNR model (:func:`model_snr`), the sd the filter is told at a frame's SNRs
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 
 import numpy as np
 
-from aasl_gym import geometry
+from aasl_gym import geometry, kernels
 from aasl_gym.config import EnvConfig, WorldConfig
 from aasl_gym.frontend import tone_measurement_sd
 from aasl_gym.synthesis import carrier_frequency, receiver_band
@@ -149,58 +148,25 @@ class FrameAveragedPhasor:
     offsets: np.ndarray
 
     def __call__(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
-        range_difference = partial(phasor_range_difference, self.propagation)
-        state = (position, velocity, mobile, mobile_velocity, fixed)
-        return frame_averaged(range_difference, self.offsets, self.propagation.wavenumber, *state)
+        return self.linearize(position, velocity, mobile, mobile_velocity, fixed)[0]
 
     def linearize(
         self, position, velocity, mobile, mobile_velocity, fixed
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """[RD, RRD] (..., 2), d[RD, RRD] / d[p, v] and d[RD, RRD] / d[p_m, v_m] (..., 2, 6 each) from one
-        set of multipath factors: a window fit needs all three at every trial state. The values are
-        :meth:`__call__`'s to the last bit."""
-        rd, source_gradient, mobile_gradient = self._linearized(position, velocity, mobile, mobile_velocity, fixed)
-        values = _frame_mean_and_slope(rd, self.offsets, self.propagation.wavenumber)
-        return values, _frame_jacobian(source_gradient, self.offsets), _frame_jacobian(mobile_gradient, self.offsets)
-
-    def _linearized(self, position, velocity, mobile, mobile_velocity, fixed):
-        """The instantaneous RD (..., S) at every frame sample and its gradients in the source's and the
-        mobile's position there (..., S, 3 each)."""
-        along = self.offsets[:, None]
-
-        def at_samples(start, rate) -> np.ndarray:
-            return np.asarray(start, dtype=float)[..., None, :] + along * np.asarray(rate, dtype=float)[..., None, :]
-
-        p = self.propagation
-        return geometry.phasor_range_difference_linearized(
-            at_samples(position, velocity),
-            at_samples(mobile, mobile_velocity),
-            fixed,
-            p.water_depth,
-            p.surface_reflection,
-            p.bed_reflection,
-            p.wavenumber,
-        )
+        set of multipath factors: a window fit needs all three at every trial state. One compiled pass
+        (:func:`aasl_gym.kernels.frame_phasor`); :func:`frame_averaged` of :func:`phasor_range_difference`
+        is the same model written with NumPy, which the tests hold it to."""
+        state = (position, velocity, mobile, mobile_velocity, fixed)
+        return kernels.frame_phasor(*state, self.offsets, self.propagation)
 
     def state_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
         """d[RD, RRD] / d[p, v], shape (..., 2, 6)."""
-        return _frame_jacobian(self._linearized(position, velocity, mobile, mobile_velocity, fixed)[1], self.offsets)
+        return self.linearize(position, velocity, mobile, mobile_velocity, fixed)[1]
 
     def receiver_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
         """d[RD, RRD] / d[p_m, v_m], shape (..., 2, 6)."""
-        return _frame_jacobian(self._linearized(position, velocity, mobile, mobile_velocity, fixed)[2], self.offsets)
-
-
-def _frame_jacobian(gradients: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """d[mean, slope] / d[x, x'] (..., 2, 6) of a frame's RD track sampled at x + tau x' (tau the
-    ``offsets``, about the frame's centre), from the RD's gradients in x at the samples (..., S, 3). The
-    mean and the least-squares slope are linear in the samples; unwrapping adds constants only."""
-    mean_weights = np.full(len(offsets), 1 / len(offsets))
-    slope_weights = offsets / (offsets @ offsets)
-    # Rows [mean, slope] x columns [x, x']: each a weighted sum over the samples, one matrix product.
-    weights = np.stack([mean_weights, mean_weights * offsets, slope_weights, slope_weights * offsets])  # (4, S)
-    combined = np.tensordot(gradients, weights, axes=([-2], [1]))  # (..., 3, 4)
-    return np.swapaxes(combined, -1, -2).reshape(gradients.shape[:-2] + (2, 6))
+        return self.linearize(position, velocity, mobile, mobile_velocity, fixed)[2]
 
 
 def state_jacobian_function(measurement_function):

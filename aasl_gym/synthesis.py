@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aasl_gym import geometry
+from aasl_gym import geometry, kernels
 from aasl_gym.bandpass import band_gain
 
 WAVEFORM_KINDS = ("tone", "sweep", "hop")
@@ -210,10 +210,12 @@ def received_pressure(
         pressure = gain * amplitude / distance
         if analytic:
             phase -= mixer_phase
-            total.real += pressure * np.cos(phase)
-            total.imag += pressure * np.sin(phase)
+        sine, cosine = kernels.sincos(phase)  # compiled: numpy's sin and cos were most of a frame's cost
+        if analytic:
+            total.real += pressure * cosine
+            total.imag += pressure * sine
         else:
-            total += pressure * np.cos(phase)
+            total += pressure * cosine
     return total
 
 

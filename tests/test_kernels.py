@@ -1,0 +1,59 @@
+"""The compiled loops (:mod:`aasl_gym.kernels`) against NumPy: the sine and cosine against the C library's,
+and the phasor model's batched shapes against one point at a time."""
+
+import numpy as np
+import pytest
+
+from aasl_gym import geometry, kernels
+from aasl_gym.measurement_models import FrameAveragedPhasor, Propagation, frame_offsets
+
+PROPAGATION = Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5)
+FIXED = np.array([0.0, 0.0, -0.96])
+
+
+@pytest.mark.parametrize("bound", [1.0, 800.0, kernels.SINCOS_LIMIT])
+def test_sincos_is_within_two_units_in_the_last_place_of_numpy(bound):
+    """Polynomial sine and cosine against ``np.sin`` and ``np.cos`` (the C library's) over [-bound, bound]:
+    an absolute error of at most 2^-53 * 2, which is 2 ulp at values near 1 and less below."""
+    angles = np.random.default_rng(0).uniform(-bound, bound, 200_000)
+    sine, cosine = kernels.sincos(angles)
+    assert np.max(np.abs(sine - np.sin(angles))) <= 2.3e-16
+    assert np.max(np.abs(cosine - np.cos(angles))) <= 2.3e-16
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")  # sin(inf) is NaN, as it should be
+def test_sincos_keeps_the_shape_and_hands_what_it_cannot_reduce_to_numpy():
+    """Beyond ``SINCOS_LIMIT`` (where the three-part reduction stops being exact) and for NaN or inf, the
+    result is NumPy's to the last bit."""
+    angles = np.array([[0.0, 1e7, -3e9], [np.pi, np.nan, np.inf]])
+    sine, cosine = kernels.sincos(angles)
+    assert sine.shape == cosine.shape == angles.shape
+    np.testing.assert_array_equal(sine, np.sin(angles))
+    np.testing.assert_array_equal(cosine, np.cos(angles))
+    assert kernels.sincos(np.zeros((0, 3)))[0].shape == (0, 3)
+
+
+def test_the_phasor_loops_broadcast_like_one_point_at_a_time():
+    """A batch (sources (4, 5, 3) against one mobile) gives each point what it gives alone."""
+    rng = np.random.default_rng(1)
+    sources, mobile = rng.uniform([-30, -30, -59], [30, 30, -1], (4, 5, 3)), np.array([12.0, -3.0, -7.0])
+    arguments = (PROPAGATION.water_depth, PROPAGATION.surface_reflection, PROPAGATION.bed_reflection)
+    batch = geometry.phasor_range_difference_linearized(sources, mobile, FIXED, *arguments, PROPAGATION.wavenumber)
+    for index in np.ndindex(4, 5):
+        alone = geometry.phasor_range_difference_linearized(
+            sources[index], mobile, FIXED, *arguments, PROPAGATION.wavenumber
+        )
+        for batched, single in zip(batch, alone):
+            np.testing.assert_allclose(batched[index], single, rtol=0, atol=1e-12)
+    frame = FrameAveragedPhasor(PROPAGATION, frame_offsets(0.2, 3))
+    velocities = rng.uniform(-1.5, 1.5, (4, 5, 3))
+    values, state_jacobian, _ = frame.linearize(sources, velocities, mobile, np.array([1.0, 0.0, 0.0]), FIXED)
+    assert values.shape == (4, 5, 2) and state_jacobian.shape == (4, 5, 2, 6)
+    one = frame.linearize(sources[2, 3], velocities[2, 3], mobile, np.array([1.0, 0.0, 0.0]), FIXED)
+    np.testing.assert_allclose(values[2, 3], one[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(state_jacobian[2, 3], one[1], rtol=0, atol=1e-12)
+
+
+def test_the_phasor_loops_take_one_fixed_hydrophone():
+    with pytest.raises(ValueError, match=r"fixed must be one hydrophone position of shape \(3,\)"):
+        kernels.phasor_paths(np.zeros(3), np.ones(3), np.zeros((2, 3)), 60.0, -0.9, 0.3, 4.0)
