@@ -2,7 +2,8 @@
 
 Pure functions on numpy arrays. Positions are in metres, velocities in m/s, in the world frame (z up,
 surface at z = 0, bed at z = -D). Every function broadcasts over leading dimensions, so the same code
-serves one state and a whole set of sigma points: ``source`` may be ``(3,)`` or ``(N, 3)``.
+serves one state and a whole set of sigma points: ``source`` may be ``(3,)`` or ``(N, 3)``. (The compiled
+phasor RD, :func:`phasor_range_difference` and its linearization, takes one fixed hydrophone ``(3,)``.)
 
 Conventions (SPEC section 2), with p_s the source, p_m the mobile and p_f the fixed hydrophone:
 
@@ -239,7 +240,7 @@ def phasor_range_difference(
 ) -> np.ndarray:
     """The apparent RD (m) of :func:`phasor_multipath` alone, without the rates: what a frame's RD track is
     made of (its slope is the frame's RRD). Compiled (:func:`aasl_gym.kernels.phasor_paths`): it agrees
-    with :func:`phasor_multipath` to a few units in the last place."""
+    with :func:`phasor_multipath` to a few units in the last place. ``fixed`` is one point (3,)."""
     gains = (surface_reflection, bed_reflection)
     return kernels.phasor_paths(source, mobile, fixed, water_depth, *gains, wavenumber)[0]
 
@@ -254,7 +255,7 @@ def phasor_range_difference_linearized(
     wavenumber: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`phasor_range_difference` (m) and its gradients (..., 3) with respect to the source position
-    and the mobile hydrophone's position, from one set of multipath factors.
+    and the mobile hydrophone's position, from one set of multipath factors; ``fixed`` is one point (3,).
 
     RD_app = (d_m - d_f) + (phi_f - phi_m) / k with phi the phase of a receiver's multipath factor
     M = 1 + sum_i T_i, T_i = a_i (d / r_i) exp(-j k (r_i - d)). A small move changes log T_i by

@@ -92,6 +92,8 @@ def _receiver(sx, sy, sz, rx, ry, rz, depth, surface_gain, bed_gain, k):
     surface_vertical, bed_vertical = -sz - rz, -2.0 * depth - sz - rz
     surface_range = math.sqrt(horizontal + surface_vertical * surface_vertical)
     bed_range = math.sqrt(horizontal + bed_vertical * bed_vertical)
+    # The path-length differences are bounded by the water column (k (r_i - d) <= 2 k D, hundreds of rad), far
+    # inside SINCOS_LIMIT, so the loop calls the polynomial directly.
     surface_sin, surface_cos = _sincos(k * (surface_range - d))
     bed_sin, bed_cos = _sincos(k * (bed_range - d))
     surface_amplitude, bed_amplitude = surface_gain * d / surface_range, bed_gain * d / bed_range
@@ -200,7 +202,7 @@ def _rows(*vectors) -> tuple[tuple[int, ...], np.ndarray]:
 def _fixed_point(fixed) -> np.ndarray:
     """The fixed hydrophone (m) as the one point (3,) the loops take: read once, not per column, so that they
     vectorise (a third set of columns to read kept LLVM from it)."""
-    fixed = np.asarray(fixed, dtype=float)
+    fixed = np.array(fixed, dtype=float)  # a fresh contiguous copy: one compiled signature for every caller
     if fixed.shape != (3,):
         raise ValueError(f"fixed must be one hydrophone position of shape (3,), got shape {fixed.shape}")
     return fixed
@@ -222,7 +224,7 @@ def phasor_paths(
     out = _paths(points, fixed, water_depth, surface_reflection, bed_reflection, wavenumber)
     gradients = out[5:11].T
     return (
-        _apparent(out, wavenumber).reshape(shape),
+        _apparent(out, wavenumber).reshape(shape)[()],  # [()]: a scalar for one point, as NumPy's ufuncs give
         gradients[:, 0:3].reshape(shape + (3,)),
         gradients[:, 3:6].reshape(shape + (3,)),
     )

@@ -103,9 +103,7 @@ def frame_averaged(
     Where a receiver's multipath sum passes near zero its phase turns by up to pi within a frame: the
     centre's RD and instantaneous RRD then differ from the frame's mean and slope by many sd.
     """
-    offsets = np.asarray(offsets, dtype=float)
-    if len(offsets) < 2 or abs(offsets.mean()) > 1e-9 * np.ptp(offsets):
-        raise ValueError(f"frame offsets must be two or more times about the frame's centre, got {offsets}")
+    offsets = _check_offsets(offsets)
     velocity, mobile_velocity = np.asarray(velocity, dtype=float), np.asarray(mobile_velocity, dtype=float)
     along = offsets[:, None]
     rd = range_difference_function(
@@ -114,6 +112,14 @@ def frame_averaged(
         fixed,
     )
     return _frame_mean_and_slope(rd, offsets, wavenumber)
+
+
+def _check_offsets(offsets) -> np.ndarray:
+    """``offsets`` (s) as an array, if they are two or more times about a frame's centre (a slope needs two)."""
+    offsets = np.asarray(offsets, dtype=float)
+    if offsets.ndim != 1 or len(offsets) < 2 or abs(offsets.mean()) > 1e-9 * np.ptp(offsets):
+        raise ValueError(f"frame offsets must be two or more times about the frame's centre, got {offsets}")
+    return offsets
 
 
 def _frame_mean_and_slope(rd: np.ndarray, offsets: np.ndarray, wavenumber: float) -> np.ndarray:
@@ -147,6 +153,9 @@ class FrameAveragedPhasor:
     propagation: Propagation
     offsets: np.ndarray
 
+    def __post_init__(self):
+        _check_offsets(self.offsets)
+
     def __call__(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
         return self.linearize(position, velocity, mobile, mobile_velocity, fixed)[0]
 
@@ -155,8 +164,8 @@ class FrameAveragedPhasor:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """[RD, RRD] (..., 2), d[RD, RRD] / d[p, v] and d[RD, RRD] / d[p_m, v_m] (..., 2, 6 each) from one
         set of multipath factors: a window fit needs all three at every trial state. One compiled pass
-        (:func:`aasl_gym.kernels.frame_phasor`); :func:`frame_averaged` of :func:`phasor_range_difference`
-        is the same model written with NumPy, which the tests hold it to."""
+        (:func:`aasl_gym.kernels.frame_phasor`); the tests hold it to :func:`frame_averaged`, the frame's
+        mean and slope written with NumPy, and its Jacobians to central differences."""
         state = (position, velocity, mobile, mobile_velocity, fixed)
         return kernels.frame_phasor(*state, self.offsets, self.propagation)
 

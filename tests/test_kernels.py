@@ -57,3 +57,15 @@ def test_the_phasor_loops_broadcast_like_one_point_at_a_time():
 def test_the_phasor_loops_take_one_fixed_hydrophone():
     with pytest.raises(ValueError, match=r"fixed must be one hydrophone position of shape \(3,\)"):
         kernels.phasor_paths(np.zeros(3), np.ones(3), np.zeros((2, 3)), 60.0, -0.9, 0.3, 4.0)
+
+
+@pytest.mark.parametrize("offsets", [[0.0], [0.0, 0.1], [[-0.1, 0.1]]])
+def test_the_frame_model_refuses_offsets_that_give_no_centred_slope(offsets):
+    with pytest.raises(ValueError, match="frame offsets must be two or more times about the frame's centre"):
+        FrameAveragedPhasor(PROPAGATION, np.array(offsets))
+
+
+def test_one_point_gives_a_scalar_rd():
+    arguments = (PROPAGATION.water_depth, PROPAGATION.surface_reflection, PROPAGATION.bed_reflection)
+    rd = geometry.phasor_range_difference(np.array([3.0, 4.0, -10.0]), np.zeros(3) - 5, FIXED, *arguments, 4.0)
+    assert isinstance(rd, float)

@@ -228,9 +228,9 @@ def test_the_frame_models_jacobians_match_central_differences(source, velocity, 
 @given(SOURCES, VELOCITIES, MOBILES, VELOCITIES)
 def test_the_compiled_frame_model_is_frame_averaged(source, velocity, mobile, mobile_velocity):
     """The measurement-function class (one compiled pass, :func:`aasl_gym.kernels.frame_phasor`) against
-    :func:`frame_averaged` of the RD-only phasor model, the same model written with NumPy; the RD modulo a
-    wavelength (a sample on a branch cut may round to either side). Its values, state Jacobian and receiver
-    Jacobian are the three arrays of one linearization."""
+    :func:`frame_averaged` (the frame's unwrapping, mean and slope written with NumPy) of the RD-only phasor
+    model; the RD modulo a wavelength (a sample on a branch cut may round to either side). Its values, state
+    Jacobian and receiver Jacobian are the three arrays of one linearization."""
     assume(apart(source, mobile, FIXED))
     generic = partial(
         frame_averaged, partial(phasor_range_difference, PROPAGATION), FRAME.offsets, PROPAGATION.wavenumber

@@ -10,6 +10,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 import scipy
 
@@ -19,7 +20,7 @@ Row = dict[str, Any]  # one episode's results (``agents.rollout``'s keys), as th
 
 
 def platform_record() -> dict[str, str]:
-    """Where a report was written: Python, NumPy and SciPy versions and the processor. A seed's episode is the
+    """Where a report was written: Python, NumPy, SciPy and numba versions and the processor. A seed's episode is the
     same to the last bit on one machine and build; on another (CPU, or builds of NumPy and its BLAS) the
     vectorized math can round differently in the last bit, and the tracker's decisions amplify that (rows
     resumed from an earlier run may come from another machine)."""
@@ -27,6 +28,7 @@ def platform_record() -> dict[str, str]:
         "python": platform.python_version(),
         "numpy": np.__version__,
         "scipy": scipy.__version__,
+        "numba": numba.__version__,  # the compiled phasor model and sine (aasl_gym.kernels)
         "machine": platform.machine(),
         "processor": _processor_name(),
     }
