@@ -168,6 +168,7 @@ def _frame_combine(range_difference, paths, offsets, period, out):
     out[:] = 0.0
     slips = np.zeros(count)
     unwrapped = np.empty_like(range_difference)
+    # Every inner loop runs over the columns i, so that it vectorises.
     for s in range(samples):
         for i in range(count):
             if s > 0:
@@ -175,12 +176,15 @@ def _frame_combine(range_difference, paths, offsets, period, out):
             unwrapped[s, i] = range_difference[s, i] - slips[i] * period
             out[0, i] += unwrapped[s, i] / samples
     for s in range(samples):
-        tau = offsets[s]
-        mean_weight, slope_weight = 1.0 / samples, tau / spread
+        slope_weight = offsets[s] / spread
         for i in range(count):
             out[1, i] += (unwrapped[s, i] - out[0, i]) * slope_weight
-            for gradient, first in ((5, 2), (8, 14)):  # the source's gradient rows, the mobile's
-                for c in range(3):
+    for gradient, first in ((5, 2), (8, 14)):  # the source's gradient rows, the mobile's
+        for c in range(3):
+            for s in range(samples):
+                tau = offsets[s]
+                mean_weight, slope_weight = 1.0 / samples, tau / spread
+                for i in range(count):
                     g = paths[gradient + c, s, i]
                     out[first + c, i] += g * mean_weight  # d mean / d x
                     out[first + 3 + c, i] += g * mean_weight * tau  # d mean / d x'
@@ -191,12 +195,13 @@ def _frame_combine(range_difference, paths, offsets, period, out):
 def _rows(*vectors) -> tuple[tuple[int, ...], np.ndarray]:
     """The common leading shape of 3-vectors (..., 3) and their components as the rows (3 V, N) of one
     contiguous array (V the number of vectors), as :func:`_phasor_loop` reads them."""
-    broadcast = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in vectors))
-    shape = broadcast[0].shape[:-1]
-    rows = np.empty((3 * len(vectors), int(np.prod(shape))))
-    for i, vector in enumerate(broadcast):
-        rows[3 * i : 3 * i + 3] = vector.reshape(-1, 3).T
-    return shape, rows
+    arrays = [np.asarray(v, dtype=float) for v in vectors]
+    shape = np.broadcast_shapes(*(a.shape for a in arrays))[:-1]
+    rows = np.empty((3 * len(arrays), *shape))
+    for i, vector in enumerate(arrays):
+        for axis in range(3):  # each component broadcast into its row: no broadcast copies, no transposes
+            rows[3 * i + axis] = vector[..., axis]
+    return shape, rows.reshape(3 * len(arrays), -1)
 
 
 def _fixed_point(fixed) -> np.ndarray:
