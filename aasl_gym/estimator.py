@@ -329,7 +329,13 @@ class SourceTracker:
         mean for every sigma point, and the correction's spread over the sigma points as noise instead.
         """
         position, velocity = sigmas[..., 0:3], self.model.velocity(sigmas)
-        z = self.measurement_function(position, velocity, mobile, mobile_velocity, fixed)
+        # A model with a closed-form linearization hands over its receiver Jacobian at every sigma point with
+        # its values; the central point's is the one at the mean.
+        linearize = getattr(self.measurement_function, "linearize", None)
+        if linearize is None:
+            z, receiver = self.measurement_function(position, velocity, mobile, mobile_velocity, fixed), None
+        else:
+            z, _, receiver = linearize(position, velocity, mobile, mobile_velocity, fixed)
         noise = np.zeros((len(sigmas), 2, 2))
         coarse = np.zeros(len(sigmas), dtype=bool)
         if self.ripple:
@@ -347,7 +353,9 @@ class SourceTracker:
             z[coarse] = direct[coarse] + centre[coarse]
         jacobian = np.zeros((len(sigmas), 2, 6))
         for model, rows in ((self.measurement_function, ~coarse), (direct_measurement, coarse)):
-            if rows.any():
+            if rows.any() and model is self.measurement_function and receiver is not None:
+                jacobian[rows] = receiver[rows, 0]
+            elif rows.any():
                 at_mean = position[rows, 0], velocity[rows, 0]
                 jacobian[rows] = receiver_jacobian(model, *at_mean, mobile, mobile_velocity, fixed)
         return z, noise, jacobian
