@@ -169,6 +169,79 @@ class TrackerOutput:
     innovation_sd: np.ndarray  # (2,), sqrt(diag S)
 
 
+class MeasurementHistory:
+    """The tracker's last ``capacity`` measurements, oldest first: rows (time, z, mobile, mobile velocity, R) as a
+    deque keeps them, and the same columns as arrays, so that a window (:meth:`columns`) is a slice and not a
+    stack of hundreds of small arrays. Rows are written on into arrays twice the capacity; when the end is
+    reached the kept rows move to the front."""
+
+    def __init__(self, capacity: int):
+        self.rows: deque = deque(maxlen=capacity)
+        size = 2 * max(capacity, 1)
+        self._times, self._z, self._noise = np.empty(size), np.empty((size, 2)), np.empty((size, 2, 2))
+        self._mobile, self._mobile_velocity = np.empty((size, 3)), np.empty((size, 3))
+        # Each row's R: a new number where it is another object than the row before's, so that whether a
+        # window's rows share one R is one comparison.
+        self._runs = np.empty(size, dtype=np.int64)
+        self._end = 0
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __iter__(self):
+        return iter(self.rows)
+
+    def __getitem__(self, index: int) -> tuple:
+        return self.rows[index]
+
+    def clear(self) -> None:
+        self.rows.clear()
+        self._end = 0
+
+    def _columns(self) -> tuple[np.ndarray, ...]:
+        return self._times, self._z, self._mobile, self._mobile_velocity, self._noise, self._runs
+
+    def append(self, row: tuple) -> None:
+        """Keep ``row`` = (time, z, mobile, mobile velocity, R); the oldest goes once ``capacity`` are kept."""
+        previous = self.rows[-1][4] if self.rows else None
+        self.rows.append(row)
+        if self._end == len(self._times):
+            kept = len(self.rows) - 1
+            for column in self._columns():
+                column[:kept] = column[self._end - kept : self._end]
+            self._end = kept
+        run = self._runs[self._end - 1] + (row[4] is not previous) if self._end else 0
+        self._write(self._end, row)
+        self._runs[self._end] = run
+        self._end += 1
+
+    def _write(self, at: int, row: tuple) -> None:
+        self._times[at], self._z[at], self._mobile[at], self._mobile_velocity[at], self._noise[at] = row
+
+    def replace_last(self, row: tuple) -> None:
+        """The newest row becomes ``row`` (its R the same object as before)."""
+        self.rows[-1] = row
+        self._write(self._end - 1, row)
+
+    def columns(self, length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The newest ``length`` rows' times (K,), z (K, 2), mobile positions and velocities (K, 3) as fresh
+        arrays, and their R: the rows' own where they share one object, else their mean. 0: every row (as a
+        deque's ``[-0:]``)."""
+        length = min(length, len(self.rows)) if length > 0 else len(self.rows)
+        window = slice(self._end - length, self._end)
+        times, z, mobile, mobile_velocity = (
+            column[window].copy() for column in (self._times, self._z, self._mobile, self._mobile_velocity)
+        )
+        shared = self._runs[window.start] == self._runs[self._end - 1]
+        noise = self.rows[-length][4] if shared else np.mean(self._noise[window], axis=0)
+        return times, z, mobile, mobile_velocity, noise
+
+    def count_since(self, start: float) -> int:
+        """How many of the kept rows were taken at or after ``start`` (s); their times increase."""
+        times = self._times[self._end - len(self.rows) : self._end]
+        return len(times) - int(np.searchsorted(times, start - 1e-9, side="left"))
+
+
 @dataclass
 class Hypothesis:
     ukf: UnscentedKalmanFilter
@@ -272,7 +345,7 @@ class SourceTracker:
 
     def reset(self) -> None:
         lengths = (self.burst_length, self.reinit_length, self.reseed_length, self.track_length)
-        self.history: deque = deque(maxlen=max(lengths))
+        self.history = MeasurementHistory(max(lengths))
         self.bank: list[Hypothesis] = []
         self.initialized = False
         self.first_time = np.nan
@@ -370,13 +443,9 @@ class SourceTracker:
     def _burst(self, length: int, fine: bool = False) -> Burst:
         """The last ``length`` measurements as a :class:`Burst`, weighed with the window model
         (``window_function``, the ripple as noise) or, ``fine``, with the filter's own model."""
-        rows = list(self.history)[-length:]
-        times, z, positions, velocities = (np.array(column) for column in list(zip(*rows))[:4])
         # An initializer weighs a burst with one R: the rows' own when they share it, else their mean
         # (signal mode: R follows each frame's SNR, which changes slowly over a burst).
-        covariances = [row[4] for row in rows]
-        shared = all(c is covariances[0] for c in covariances)
-        noise = covariances[0] if shared else np.mean(covariances, axis=0)
+        times, z, positions, velocities, noise = self.history.columns(length)
         model = self.measurement_function if fine else self.window_function
         noise = noise if fine else noise + self.multipath_noise
         return Burst(
@@ -449,7 +518,7 @@ class SourceTracker:
 
     def _samples_since(self, start: float) -> int:
         """How many of the kept measurements were taken at or after ``start`` (s)."""
-        return sum(1 for row in self.history if row[0] >= start - 1e-9)
+        return self.history.count_since(start)
 
     def _window_length(self, time: float) -> int:
         """Samples of the re-seed window: since the LC-MAP start, at most the last ``reseed_until`` seconds."""
@@ -970,7 +1039,7 @@ class SourceTracker:
         self.range_offset -= periods * self.wavelength
         z = z.copy()
         z[0] -= periods * self.wavelength
-        self.history[-1] = (self.history[-1][0], z) + self.history[-1][2:]
+        self.history.replace_last((self.history[-1][0], z) + self.history[-1][2:])
         return z
 
     def _coast(self, time: float, rng: np.random.Generator) -> TrackerOutput:

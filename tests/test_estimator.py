@@ -2,6 +2,7 @@
 
 import copy
 import itertools
+from collections import deque
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from scipy.optimize import least_squares
 from aasl_gym import estimator
 from aasl_gym.config import EnvConfig
 from aasl_gym.env import AASLEnv
+from aasl_gym.estimator import MeasurementHistory
 from aasl_gym.initializers import Burst, subsample
 from aasl_gym.measurement_models import direct_measurement
 from aasl_gym.search import LEAD_IN, TRACK_SEARCH_GATE
@@ -464,3 +466,35 @@ def test_the_track_search_leaves_a_wrong_dip_of_the_whole_track():
         worse = WindowFit(refit.states + np.eye(8)[0], refit.costs + 1.0, refit.information)
         patch.setattr(estimator, "search_track", lambda *args: worse)
         assert refitted(True) > 0.7
+
+
+def test_the_history_gives_the_windows_a_deque_of_rows_gives():
+    """:class:`MeasurementHistory` against the rows kept in a plain deque, through its wrap-round: each window's
+    columns stacked from the rows, R the rows' own where they share one object and their mean where not, the
+    count of rows since a time, and a replaced newest row."""
+    rng = np.random.default_rng(3)
+    capacity = 7
+    history, reference = MeasurementHistory(capacity), deque(maxlen=capacity)
+    shared = np.eye(2)
+    for step in range(40):
+        noise = shared if step % 9 < 5 else np.diag(rng.uniform(1, 2, 2))  # runs of one R, then one R per frame
+        row = (0.2 * step, rng.normal(size=2), rng.normal(size=3), rng.normal(size=3), noise)
+        history.append(row)
+        reference.append(row)
+        if step % 4 == 1:
+            replaced = (row[0], rng.normal(size=2), *row[2:])
+            history.replace_last(replaced)
+            reference[-1] = replaced
+        assert list(history) == list(reference)
+        for length in range(len(reference) + 1):
+            rows = list(reference)[-length:]
+            times, z, mobile, mobile_velocity, noise = history.columns(length)
+            for got, column in zip((times, z, mobile, mobile_velocity), list(zip(*rows))[:4]):
+                np.testing.assert_array_equal(got, np.array(column))
+            covariances = [row[4] for row in rows]
+            if all(c is covariances[0] for c in covariances):
+                assert noise is covariances[0]
+            else:
+                np.testing.assert_array_equal(noise, np.mean(covariances, axis=0))
+        for start in (-1.0, 0.2 * step - 0.6, 0.2 * step, 100.0):
+            assert history.count_since(start) == sum(1 for row in reference if row[0] >= start - 1e-9)
