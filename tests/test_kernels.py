@@ -69,3 +69,19 @@ def test_one_point_gives_a_scalar_rd():
     arguments = (PROPAGATION.water_depth, PROPAGATION.surface_reflection, PROPAGATION.bed_reflection)
     rd = geometry.phasor_range_difference(np.array([3.0, 4.0, -10.0]), np.zeros(3) - 5, FIXED, *arguments, 4.0)
     assert isinstance(rd, float)
+
+
+def test_the_frame_model_in_blocks_is_the_frame_model_at_once():
+    """More states than one block (:data:`aasl_gym.kernels.CHUNK`) give, state by state, what each block gives
+    alone: the blocks are stitched in order."""
+    rng = np.random.default_rng(4)
+    count = 2 * kernels.CHUNK + 7
+    sources, velocities = rng.uniform([-30, -30, -59], [30, 30, -1], (count, 3)), rng.uniform(-1.5, 1.5, (count, 3))
+    mobile, mobile_velocity = np.array([12.0, -3.0, -7.0]), np.array([1.0, 0.0, 0.0])
+    frame = FrameAveragedPhasor(PROPAGATION, frame_offsets(0.2, 3))
+    whole = frame.linearize(sources, velocities, mobile, mobile_velocity, FIXED)
+    for start in (0, kernels.CHUNK - 3, 2 * kernels.CHUNK):
+        part = slice(start, start + 10)
+        alone = frame.linearize(sources[part], velocities[part], mobile, mobile_velocity, FIXED)
+        for stitched, block in zip(whole, alone):
+            np.testing.assert_array_equal(stitched[part], block)
