@@ -426,9 +426,11 @@ class SourceTracker:
             z[coarse] = direct[coarse] + centre[coarse]
         jacobian = np.zeros((len(sigmas), 2, 6))
         for model, rows in ((self.measurement_function, ~coarse), (direct_measurement, coarse)):
-            if rows.any() and model is self.measurement_function and receiver is not None:
+            if not rows.any():
+                continue
+            if model is self.measurement_function and receiver is not None:
                 jacobian[rows] = receiver[rows, 0]
-            elif rows.any():
+            else:
                 at_mean = position[rows, 0], velocity[rows, 0]
                 jacobian[rows] = receiver_jacobian(model, *at_mean, mobile, mobile_velocity, fixed)
         return z, noise, jacobian

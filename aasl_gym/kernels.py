@@ -6,7 +6,7 @@ Why compiled. NumPy's float64 ``sin`` and ``cos`` call the C library one element
 element on the development machine), and the phasor model written as array expressions streamed some sixty
 temporaries through memory. A loop that evaluates sin and cos by polynomial and keeps every intermediate
 in registers is vectorised by LLVM (AVX-512 / AVX2): the apparent RD with its gradients runs about 15 times
-faster than its NumPy form, and whole default-world episodes about 1.9 times faster. The results agree with
+faster than its NumPy form, and whole default-world episodes run about twice as fast. The results agree with
 the NumPy forms (:func:`aasl_gym.geometry.phasor_multipath`, :func:`aasl_gym.measurement_models.frame_averaged`,
 ``np.sin``) to a few units in the last place, not to the last bit (``tests/test_kernels.py``,
 ``tests/test_properties.py``).
