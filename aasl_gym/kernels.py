@@ -230,7 +230,7 @@ def phasor_paths(
     hydrophone's positions, for a source and a mobile (..., 3; m) that broadcast together and one fixed
     hydrophone (3,); see :func:`aasl_gym.geometry.phasor_range_difference_linearized` for the model."""
     shape, points = _rows(source, mobile)
-    out = _paths(points, fixed, water_depth, surface_reflection, bed_reflection, wavenumber)
+    out = _paths(points, _fixed_point(fixed), water_depth, surface_reflection, bed_reflection, wavenumber)
     gradients = out[5:11].T
     return (
         _apparent(out, wavenumber).reshape(shape)[()],  # [()]: a scalar for one point, as NumPy's ufuncs give
@@ -239,11 +239,13 @@ def phasor_paths(
     )
 
 
-def _paths(points: np.ndarray, fixed, water_depth, surface_reflection, bed_reflection, wavenumber) -> np.ndarray:
-    """:func:`_phasor_loop`'s rows (11, N) for ``points`` (6, N)."""
+def _paths(
+    points: np.ndarray, fixed: np.ndarray, water_depth, surface_reflection, bed_reflection, wavenumber
+) -> np.ndarray:
+    """:func:`_phasor_loop`'s rows (11, N) for ``points`` (6, N) and the fixed point of :func:`_fixed_point`."""
     out = np.empty((11, points.shape[1]))
     channel = float(water_depth), float(surface_reflection), float(bed_reflection), float(wavenumber)
-    _phasor_loop(points, _fixed_point(fixed), *channel, out)
+    _phasor_loop(points, fixed, *channel, out)
     return out
 
 

@@ -208,14 +208,13 @@ def received_pressure(
         distance = np.sqrt(sum((relative[:, i, None] + relative_velocity[:, i, None] * offset) ** 2 for i in range(3)))
         phase = waveform.phase_at(times - distance / sound_speed)
         pressure = gain * amplitude / distance
+        # sin and cos compiled (:func:`aasl_gym.kernels.sincos`): numpy's were most of a frame's cost.
         if analytic:
-            phase -= mixer_phase
-        sine, cosine = kernels.sincos(phase)  # compiled: numpy's sin and cos were most of a frame's cost
-        if analytic:
+            sine, cosine = kernels.sincos(phase - mixer_phase)
             total.real += pressure * cosine
             total.imag += pressure * sine
         else:
-            total += pressure * cosine
+            total += pressure * kernels.sincos(phase)[1]
     return total
 
 
