@@ -284,3 +284,61 @@ def _frame_block(rows: np.ndarray, fixed: np.ndarray, offsets: np.ndarray, propa
     out = np.empty((26, rows.shape[1]))
     _frame_combine(_apparent(paths, p.wavenumber), paths, offsets, 2 * np.pi / p.wavenumber, out)
     return out
+
+
+@_compile
+def _tone_angles(relative, relative_velocity, scales, offsets, times, mixer_phase, tone, angles, pressures):
+    """Each path's (P), receiver's (R) and sample's (N) angle after the mixer and pressure (``angles``,
+    ``pressures``, (P, R, N)) as :func:`aasl_gym.synthesis.received_pressure` computes them, operation for
+    operation; whether every angle is within ``SINCOS_LIMIT`` (False for NaN too)."""
+    phase, angular, sound_speed = tone[0], tone[1], tone[2]
+    largest = 0.0
+    for p in range(relative.shape[0]):
+        for r in range(relative.shape[1]):
+            x0, y0, z0 = relative[p, r, 0], relative[p, r, 1], relative[p, r, 2]
+            vx, vy, vz = relative_velocity[p, r, 0], relative_velocity[p, r, 1], relative_velocity[p, r, 2]
+            for n in range(times.shape[0]):
+                x, y, z = x0 + vx * offsets[n], y0 + vy * offsets[n], z0 + vz * offsets[n]
+                distance = math.sqrt(x * x + y * y + z * z)
+                angle = (phase + angular * (times[n] - distance / sound_speed)) - mixer_phase[n]
+                angles[p, r, n], pressures[p, r, n] = angle, scales[p] / distance
+                largest = max(largest, abs(angle))
+    return largest <= SINCOS_LIMIT
+
+
+@_compile
+def _add_phasors(angles, pressures, real, imaginary):
+    """``real`` and ``imaginary`` (R, N) plus every path's pressure times cos and sin of its angle, path by path."""
+    for p in range(angles.shape[0]):
+        for r in range(angles.shape[1]):
+            for n in range(angles.shape[2]):
+                sine, cosine = _sincos(angles[p, r, n])
+                real[r, n] += pressures[p, r, n] * cosine
+                imaginary[r, n] += pressures[p, r, n] * sine
+
+
+def tone_envelope(
+    relative: np.ndarray,
+    relative_velocity: np.ndarray,
+    scales: np.ndarray,
+    offsets: np.ndarray,
+    times: np.ndarray,
+    mixer_phase: np.ndarray,
+    tone: tuple[float, float, float],
+) -> np.ndarray | None:
+    """A tone's complex envelope (R, N) at R receivers from P paths: each path's source (an image for a reflected
+    one) at ``relative`` (P, R, 3; m) from each receiver, moving at ``relative_velocity`` (P, R, 3; m/s), its gain
+    times the peak pressure at 1 m in ``scales`` (P,); sampled at ``times`` (N,; s), ``offsets`` (N,; s) from the
+    frame's centre, mixed down by ``mixer_phase`` (N,; rad); ``tone`` = (phase (rad), 2 pi f0 (rad/s), sound
+    speed (m/s)). The same to the last bit as :func:`aasl_gym.synthesis.received_pressure`'s NumPy form; None
+    where an angle is beyond the polynomial's range (the caller then takes NumPy's sine)."""
+    shape = relative.shape[:2] + times.shape
+    angles, pressures = np.empty(shape), np.empty(shape)
+    constants = np.array(tone, dtype=float)
+    if not _tone_angles(relative, relative_velocity, scales, offsets, times, mixer_phase, constants, angles, pressures):
+        return None
+    real, imaginary = np.zeros(shape[1:]), np.zeros(shape[1:])
+    _add_phasors(angles, pressures, real, imaginary)
+    envelope = np.empty(shape[1:], dtype=complex)
+    envelope.real, envelope.imag = real, imaginary
+    return envelope

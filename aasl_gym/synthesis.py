@@ -201,8 +201,14 @@ def received_pressure(
     """
     offset = times - centre
     receivers, receiver_velocities = np.atleast_2d(receivers), np.atleast_2d(receiver_velocities)
-    total = np.zeros((len(receivers), len(times)), dtype=complex if analytic else float)
     mixer_phase = 2 * np.pi * carrier * times
+    if analytic and waveform.kind == "tone":
+        envelope = _tone_envelope(
+            waveform, times, offset, paths, receivers, receiver_velocities, sound_speed, amplitude, mixer_phase
+        )
+        if envelope is not None:
+            return envelope
+    total = np.zeros((len(receivers), len(times)), dtype=complex if analytic else float)
     for position, velocity, gain in paths:
         relative, relative_velocity = position - receivers, velocity - receiver_velocities  # (R, 3)
         distance = np.sqrt(sum((relative[:, i, None] + relative_velocity[:, i, None] * offset) ** 2 for i in range(3)))
@@ -216,6 +222,19 @@ def received_pressure(
         else:
             total += pressure * kernels.sincos(phase)[1]
     return total
+
+
+def _tone_envelope(
+    waveform: Waveform, times, offset, paths, receivers, receiver_velocities, sound_speed, amplitude, mixer_phase
+) -> np.ndarray | None:
+    """:func:`received_pressure`'s complex envelope of a tone, compiled (:func:`aasl_gym.kernels.tone_envelope`, the
+    same to the last bit): None where its angles are beyond the polynomial sine's range."""
+    shape = (len(paths), len(receivers), 3)  # no paths (noise alone) included
+    relative = np.array([position - receivers for position, _, _ in paths]).reshape(shape)
+    relative_velocity = np.array([velocity - receiver_velocities for _, velocity, _ in paths]).reshape(shape)
+    scales = np.array([gain * amplitude for _, _, gain in paths], dtype=float)
+    tone = (waveform.phase, 2 * np.pi * waveform.frequency, sound_speed)
+    return kernels.tone_envelope(relative, relative_velocity, scales, offset, times, mixer_phase, tone)
 
 
 def noise_sd(noise_level_db: float, band: tuple[float, float], rate: float, complex_samples: bool = False) -> float:

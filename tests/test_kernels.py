@@ -1,10 +1,11 @@
 """The compiled loops (:mod:`aasl_gym.kernels`) against NumPy: the sine and cosine against the C library's,
-and the phasor model's batched shapes against one point at a time."""
+the phasor model's batched shapes against one point at a time, and the tone's compiled envelope against
+its NumPy form."""
 
 import numpy as np
 import pytest
 
-from aasl_gym import geometry, kernels
+from aasl_gym import geometry, kernels, synthesis
 from aasl_gym.measurement_models import FrameAveragedPhasor, Propagation, frame_offsets
 
 PROPAGATION = Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5)
@@ -85,3 +86,19 @@ def test_the_frame_model_in_blocks_is_the_frame_model_at_once():
         alone = frame.linearize(sources[part], velocities[part], mobile, mobile_velocity, FIXED)
         for stitched, block in zip(whole, alone):
             np.testing.assert_array_equal(stitched[part], block)
+
+
+@pytest.mark.parametrize("phase", [1.234, 3.0e6])  # the second puts every angle beyond the polynomial's range
+def test_the_compiled_tone_envelope_is_the_numpy_one_to_the_last_bit(phase, monkeypatch):
+    """Three paths (reflections on) of a moving source at a moving and a fixed receiver: the compiled envelope
+    against :func:`aasl_gym.synthesis.received_pressure`'s NumPy form, bit for bit; out of the sine's range the
+    kernel declines and the NumPy form (with NumPy's sine) runs."""
+    waveform = synthesis.Waveform("tone", 1000.0, phase=phase)
+    times = synthesis.frame_times(57.3, 0.24, 4000.0)
+    paths = synthesis.path_sources(np.array([5.0, 3.0, -10.0]), np.array([0.3, 0.1, 0.0]), True, 60.0, -0.9, 0.3)
+    receivers, velocities = np.array([[20.0, -4.0, -6.0], FIXED]), np.array([[1.0, 0.5, 0.0], [0.0, 0.0, 0.0]])
+    arguments = (waveform, times, 57.3, paths, receivers, velocities, 1500.0, 1.0e3, True, 1000.0)
+    compiled = synthesis.received_pressure(*arguments)
+    assert (kernels.tone_envelope is not None) and compiled.shape == (2, len(times)) and compiled.dtype == complex
+    monkeypatch.setattr(kernels, "tone_envelope", lambda *_: None)
+    np.testing.assert_array_equal(compiled, synthesis.received_pressure(*arguments))
