@@ -103,6 +103,7 @@ from aasl_gym.filters import (
     UnscentedKalmanFilter,
     make_motion_model,
     merwe_weights,
+    predict_together,
     whole_periods,
 )
 from aasl_gym.fisher import information_prior
@@ -1061,14 +1062,7 @@ class SourceTracker:
 
     def _predicted_bank(self, dt: float) -> list[Hypothesis]:
         """Every hypothesis predicted ``dt`` seconds on; one whose covariance breaks is dropped."""
-        predicted = []
-        for hypothesis in self.bank:
-            try:
-                hypothesis.ukf.predict(dt)
-            except np.linalg.LinAlgError:
-                continue
-            predicted.append(hypothesis)
-        return predicted
+        return [self.bank[i] for i in predict_together([h.ukf for h in self.bank], dt)]
 
     def _restart(self, time: float, rng: np.random.Generator) -> None:
         """No hypothesis is left: LC-MAP re-starts on the last ``reinit_window``; the new filters stand at

@@ -20,7 +20,7 @@ Navigation", 2001 (process-noise models, section 6.2).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy import linalg
@@ -448,6 +448,44 @@ def merwe_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> 
     """
     root = np.linalg.cholesky(spread * covariance).T  # rows of the upper factor, as filterpy uses
     return np.concatenate([x[None, :], x + root, x - root])
+
+
+def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> list[int]:
+    """Predict ``filters`` (one motion model and one set of weights) ``dt`` seconds on as a batch, each exactly as
+    its own :meth:`UnscentedKalmanFilter.predict` would (the same operations on each one's slice of the stacked
+    arrays); the indices of those that predicted. Where a covariance breaks, the filters predict one by one and
+    those whose covariance breaks are left out (as after their own failed predict)."""
+    if not filters:
+        return []
+    first = filters[0]
+    model, spread = first.model, first.spread
+    try:
+        sigmas = _stacked_sigma_points(np.stack([f.x for f in filters]), np.stack([f.P for f in filters]), spread)
+        propagated = model.transition(sigmas, dt)
+        means = first.Wm @ propagated
+        deviations = propagated - means[:, None]
+        covariances = (np.swapaxes(deviations, 1, 2) * first.Wc) @ deviations + model.process_noise(dt)
+        reflected = [model.reflect(mean, covariance) for mean, covariance in zip(means, covariances)]
+        predicted_sigmas = _stacked_sigma_points(*(np.stack(parts) for parts in zip(*reflected)), spread)
+    except np.linalg.LinAlgError:
+        return [i for i, f in enumerate(filters) if _predicted_alone(f, dt)]
+    for f, (x, covariance), sigmas_f in zip(filters, reflected, predicted_sigmas):
+        f.x, f.P, f.sigmas_f = x.copy(), covariance.copy(), sigmas_f
+    return list(range(len(filters)))
+
+
+def _stacked_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> np.ndarray:
+    """:func:`merwe_sigma_points` of H filters at once: means (H, n), covariances (H, n, n) -> (H, 2n+1, n)."""
+    root = np.swapaxes(np.linalg.cholesky(spread * covariance), 1, 2)
+    return np.concatenate([x[:, None, :], x[:, None, :] + root, x[:, None, :] - root], axis=1)
+
+
+def _predicted_alone(ukf: UnscentedKalmanFilter, dt: float) -> bool:
+    try:
+        ukf.predict(dt)
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 def whole_periods(
