@@ -7,7 +7,7 @@ from scipy.integrate import quad_vec, solve_ivp
 from scipy.stats import multivariate_normal
 
 from aasl_gym.config import FilterConfig
-from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter, merwe_sigma_points
+from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter, merwe_sigma_points, predict_together
 from aasl_gym.measurement_models import direct_measurement
 
 FIXED = np.array([0.0, 0, -0.96])
@@ -54,6 +54,39 @@ def test_matches_filterpy_step_for_step(name):
         np.testing.assert_allclose(ours.P, reference.P, rtol=0, atol=1e-8)
         assert ours.log_likelihood == pytest.approx(reference.log_likelihood, abs=1e-8)
         assert ours.nis == pytest.approx(reference.y @ np.linalg.solve(reference.S, reference.y), rel=1e-9)
+
+
+@pytest.mark.parametrize("name", ["cv", "ca", "ctrv"])
+def test_a_batch_predicts_each_filter_as_it_predicts_alone(name):
+    """``predict_together`` against each filter's own ``predict``, to the last bit: one of four is near the surface
+    bound and rising through it (reflected), and in a second batch another's covariance is not positive definite
+    (left out, the others predicted all the same)."""
+    model = MOTION_MODELS[name](FilterConfig(motion_model=name), depth_bounds=(-59.0, -1.0))
+    rng = np.random.default_rng(2)
+    starts = []
+    for i in range(4):
+        x = np.r_[5.0, -3.0, -20.0, rng.normal(0, 0.3, model.dim - 3)]
+        if i == 1:
+            x[2], x[5] = -0.9, 1.5
+        root = rng.normal(0, 0.1, (model.dim, model.dim))
+        starts.append((x, root @ root.T + 0.01 * np.eye(model.dim)))
+    for broken in (False, True):
+        batch, alone = [UnscentedKalmanFilter(model) for _ in starts], [UnscentedKalmanFilter(model) for _ in starts]
+        for i, (x, covariance) in enumerate(starts):
+            for ukf in (batch[i], alone[i]):
+                ukf.initialize(x, -covariance if broken and i == 2 else covariance)
+        expected = []
+        for i, ukf in enumerate(alone):
+            try:
+                ukf.predict(0.2)
+            except np.linalg.LinAlgError:
+                continue
+            expected.append(i)
+        assert predict_together(batch, 0.2) == expected == ([0, 1, 3] if broken else [0, 1, 2, 3])
+        for i in expected:
+            for attribute in ("x", "P", "sigmas_f"):
+                assert np.array_equal(getattr(batch[i], attribute), getattr(alone[i], attribute)), attribute
+        assert batch[1].x[2] < -1.0 and batch[1].x[5] < 0  # reflected: back below the bound, going down
 
 
 def test_equals_linear_kalman_filter_on_a_linear_model():
