@@ -466,12 +466,49 @@ def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> lis
         deviations = propagated - means[:, None]
         covariances = (np.swapaxes(deviations, 1, 2) * first.Wc) @ deviations + model.process_noise(dt)
         reflected = [model.reflect(mean, covariance) for mean, covariance in zip(means, covariances)]
-        predicted_sigmas = _stacked_sigma_points(*(np.stack(parts) for parts in zip(*reflected)), spread)
+        reflected_means, reflected_covariances = (np.stack(parts) for parts in zip(*reflected))
+        predicted_sigmas = _stacked_sigma_points(reflected_means, reflected_covariances, spread)
     except np.linalg.LinAlgError:
         return [i for i, f in enumerate(filters) if _predicted_alone(f, dt)]
     for f, (x, covariance), sigmas_f in zip(filters, reflected, predicted_sigmas):
         f.x, f.P, f.sigmas_f = x.copy(), covariance.copy(), sigmas_f
     return list(range(len(filters)))
+
+
+def update_together(
+    filters: Sequence[UnscentedKalmanFilter],
+    z: np.ndarray,
+    noise: np.ndarray,
+    sigma_measurements: np.ndarray,
+    residual: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> list[int]:
+    """Update predicted ``filters`` (one set of weights) with one measurement ``z`` (2,) as a batch, each exactly as
+    its own :meth:`UnscentedKalmanFilter.update` would: ``noise`` (H, 2, 2) each one's R, ``sigma_measurements``
+    (H, 2n+1, 2) h at each one's sigma points, ``residual(z, zp)`` the innovation (batched over zp). The indices
+    of those updated; one whose innovation covariance is not positive definite is left as it was."""
+    first = filters[0]
+    sigmas = np.stack([f.sigmas_f for f in filters])  # type: ignore[misc]  # set by predict()
+    means = np.stack([f.x for f in filters])
+    predicted = first.Wm @ sigma_measurements
+    deviations = sigma_measurements - predicted[:, None]
+    s = (np.swapaxes(deviations, 1, 2) * first.Wc) @ deviations + noise  # the innovation covariances
+    cross = (np.swapaxes(sigmas - means[:, None], 1, 2) * first.Wc) @ deviations
+    determinants = s[:, 0, 0] * s[:, 1, 1] - s[:, 0, 1] * s[:, 1, 0]
+    inverses = np.stack([np.stack([s[:, 1, 1], -s[:, 0, 1]], -1), np.stack([-s[:, 1, 0], s[:, 0, 0]], -1)], -2)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero determinant's filter is left out below
+        inverses /= determinants[:, None, None]
+    gains = cross @ inverses
+    innovations = residual(z, predicted)
+    updated = [int(i) for i in np.flatnonzero(determinants > 0)]
+    for i in updated:
+        f, gain, y, s_inv = filters[i], gains[i], innovations[i], inverses[i]
+        f.S, f.y = s[i], y
+        f.x = f.x + gain @ y
+        covariance = f.P - gain @ s[i] @ gain.T
+        f.P = 0.5 * (covariance + covariance.T)
+        f.nis = float(y @ s_inv @ y)
+        f.log_likelihood = -0.5 * (f.nis + np.log(determinants[i]) + 2 * np.log(2 * np.pi))
+    return updated
 
 
 def _stacked_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> np.ndarray:
