@@ -1,6 +1,8 @@
-"""Compiled loops (numba) for the places where the pipeline spent its time on arithmetic: the tone's sines
-and cosines at every frame sample, and the phasor model - the apparent RD and its gradients at every frame
-sample of every trial state of every window fit, and the frame's mean and slope with their Jacobians.
+"""Compiled loops (numba) for the places where the pipeline spent its time on arithmetic: the tone's
+envelope at every frame sample, the phasor model - the apparent RD and its gradients at every frame
+sample of every trial state of every window fit, and the frame's mean and slope with their Jacobians - and
+what a window fit does with them at every sample (R_eff's whitener, the whitened residual, the chained
+Jacobian).
 
 Why compiled. NumPy's float64 ``sin`` and ``cos`` call the C library one element at a time (15 ns an
 element on the development machine), and the phasor model written as array expressions streamed some sixty
@@ -20,6 +22,14 @@ What keeps LLVM from vectorising a loop, found the hard way: Python's error mode
 zero and raises; ``error_model="numpy"`` gives inf or NaN as NumPy does), a tuple indexed by a loop
 variable, and reading more than a few arrays (each needs a run-time overlap check; past LLVM's limit it
 gives up). So the loops read one array of rows and the fixed hydrophone as one point.
+
+The window fit's per-sample algebra (:func:`window_terms`, :func:`whitened_chain`) is a few dozen flops on
+2 x 2 and 2 x 6 blocks per sample; as NumPy expressions it was two dozen calls on small arrays and stacked
+matrix products of 2 x 6 blocks, which NumPy loops over one by one (a third of a fit's time, session 27).
+
+The tone's complex envelope (:func:`tone_envelope`) runs the synthesis's NumPy expressions operation for
+operation and is the same to the last bit (LLVM does not contract a multiply and an add into one rounding
+unless told to); the loops above only agree with their NumPy forms to a few units in the last place.
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
 two seconds), later processes load it (about 0.1 s, at the first call).
@@ -342,3 +352,85 @@ def tone_envelope(
     envelope = np.empty(shape[1:], dtype=complex)
     envelope.real, envelope.imag = real, imaginary
     return envelope
+
+
+def _window_terms(values, receiver, biases, measured, noise, variances, period, white, residual):
+    """For every start c and sample k: R_eff = R_ac + H_r diag(variances) H_r^T, its whitener W = L^-1 (R_eff =
+    L L^T; lower triangular) into ``white`` (C, K, 2, 2), and W (z_k - h_ck - b_c) into ``residual`` (C, K, 2),
+    the RD difference wrapped to [-period/2, period/2) where ``period`` > 0."""
+    position_variance, velocity_variance = variances[0], variances[1]
+    for c in range(values.shape[0]):
+        for k in range(values.shape[1]):
+            r00, r01, r11 = noise[0, 0], noise[1, 0], noise[1, 1]
+            for j in range(6):
+                variance = position_variance if j < 3 else velocity_variance
+                rd, rrd = receiver[c, k, 0, j], receiver[c, k, 1, j]
+                r00 += variance * rd * rd
+                r01 += variance * rd * rrd
+                r11 += variance * rrd * rrd
+            a = math.sqrt(r00)
+            b = r01 / a
+            d = math.sqrt(r11 - b * b)
+            w00, w10, w11 = 1.0 / a, -b / (a * d), 1.0 / d
+            white[c, k, 0, 0], white[c, k, 0, 1], white[c, k, 1, 0], white[c, k, 1, 1] = w00, 0.0, w10, w11
+            rd_error = measured[k, 0] - (values[c, k, 0] + biases[c, 0])
+            rrd_error = measured[k, 1] - (values[c, k, 1] + biases[c, 1])
+            if period > 0.0:
+                rd_error = (rd_error + 0.5 * period) % period - 0.5 * period
+            residual[c, k, 0] = w00 * rd_error
+            residual[c, k, 1] = w10 * rd_error + w11 * rrd_error
+
+
+def window_terms(
+    values: np.ndarray,
+    receiver: np.ndarray,
+    biases: np.ndarray,
+    measured: np.ndarray,
+    noise: np.ndarray,
+    navigation_sd: tuple[float, float],
+    period: float | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A window fit's per-sample terms for C starts along K samples: the whitener W (C, K, 2, 2) of R_eff = R_ac +
+    H_r Sigma_r H_r^T and the whitened residual W (z - h - b) (C, K, 2).
+
+    ``values`` (C, K, 2) are the model's [RD, RRD] (m, m/s) along each start's trajectory, ``receiver`` (C, K, 2, 6)
+    its Jacobian in the receiver's [p_m, v_m], ``biases`` (C, 2) each start's [b_p, b_v], ``measured`` (K, 2) the
+    window's measurements, ``noise`` (2, 2) R_ac, ``navigation_sd`` (m, m/s) the reported receiver state's white
+    error; the RD difference is wrapped to [-period/2, period/2) (m) unless ``period`` is None. The same as
+    :func:`aasl_gym.initializers.trajectory_whitener` and :func:`aasl_gym.initializers.whiten` of
+    :func:`aasl_gym.initializers.periodic_residual` to a few units in the last place."""
+    count, samples = values.shape[:2]
+    white, residual = np.empty((count, samples, 2, 2)), np.empty((count, samples, 2))
+    variances = np.square(np.asarray(navigation_sd, dtype=float))
+    period = 0.0 if period is None else float(period)
+    noise = np.asarray(noise, dtype=float)
+    _window_terms(values, receiver, biases, measured, noise, variances, period, white, residual)
+    return white, residual
+
+
+@_compile
+def _whitened_chain(local, motion, white, out):
+    """``out`` (C, K, 2, n) = W_ck [local_ck motion_ck | I_2] for the lower-triangular whiteners ``white``."""
+    moving, dim = motion.shape[3], out.shape[3]
+    for c in range(motion.shape[0]):
+        for k in range(motion.shape[1]):
+            w00, w10, w11 = white[c, k, 0, 0], white[c, k, 1, 0], white[c, k, 1, 1]
+            for j in range(moving):
+                rd, rrd = 0.0, 0.0
+                for m in range(6):
+                    rd += local[c, k, 0, m] * motion[c, k, m, j]
+                    rrd += local[c, k, 1, m] * motion[c, k, m, j]
+                out[c, k, 0, j], out[c, k, 1, j] = w00 * rd, w10 * rd + w11 * rrd
+            out[c, k, 0, dim - 2], out[c, k, 1, dim - 2] = w00, w10  # the biases' unit columns, whitened
+            out[c, k, 0, dim - 1], out[c, k, 1, dim - 1] = 0.0, w11
+
+
+def whitened_chain(local: np.ndarray, motion: np.ndarray, white: np.ndarray) -> np.ndarray:
+    """A window fit's Jacobian at every sample, whitened: W_k [d[RD, RRD]/d[p, v] @ d[p, v](t_k)/d x | I_2]
+    (C, K, 2, n), from the measurement model's ``local`` (C, K, 2, 6), the motion model's trajectory Jacobian
+    ``motion`` (C, K, 6, n - 2; a broadcast view will do) and lower-triangular whiteners ``white`` (C, K, 2, 2).
+    The two bias columns are unit vectors before whitening (the biases add to the prediction)."""
+    count, samples, _, moving = motion.shape
+    out = np.empty((count, samples, 2, moving + 2))
+    _whitened_chain(local, motion, white, out)
+    return out

@@ -30,17 +30,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from aasl_gym import kernels
 from aasl_gym.filters import MotionModel
 from aasl_gym.initializers import (
     Burst,
-    inverse_cholesky,
     periodic_residual,
     robust_loss,
     robust_weights,
     trajectory_whitener,
     whiten,
 )
-from aasl_gym.measurement_models import receiver_noise, state_jacobian_function
+from aasl_gym.measurement_models import state_jacobian_function
 
 STEP = 1e-4  # central-difference step in every state component (m, m/s, rad/s, m/s^2)
 MAX_POSITION_STEP = 5.0  # m: far from its basin a linearization is poor; no step moves further
@@ -83,10 +83,10 @@ def whitened_residuals(
 ) -> np.ndarray:
     """W_k (z_k - h(x(t_k)) - b) of each state (C, n) at every sample: (C, K, 2), the RD taken as the
     burst says (:func:`~aasl_gym.initializers.periodic_residual`), ``white`` each trajectory's own
-    R_eff whitener unless given."""
-    trajectory = _trajectory(burst, model, states)
-    white = _whiteners(burst, trajectory) if white is None else white
-    return _whitened(burst, white, _predictions(burst, trajectory))
+    R_eff whitener unless given (then as a fit weighs its trial states, :func:`_evaluate`)."""
+    if white is None:
+        return _evaluate(burst, model, states)[1].reshape(len(states), -1, 2)
+    return _whitened(burst, white, _predictions(burst, _trajectory(burst, model, states)))
 
 
 def _whitened(burst: Burst, white: np.ndarray, predictions: np.ndarray) -> np.ndarray:
@@ -98,19 +98,30 @@ def _evaluate(burst: Burst, model: MotionModel, states: np.ndarray):
     """At states (C, n): the R_eff whiteners (C, K, 2, 2), the whitened measurement residuals (C, 2K)
     and, where the measurement model hands them over with its values (a ``linearize`` method, which
     shares one set of multipath factors between the three), d[RD, RRD]/d[p, v] along each
-    trajectory (C, K, 2, 6); else None, and :func:`_jacobian` evaluates the model again."""
+    trajectory (C, K, 2, 6); else None, and :func:`_jacobian` evaluates the model again.
+
+    A model with a ``linearize`` method (the frame-averaged phasor model) takes the compiled route
+    (:func:`aasl_gym.kernels.window_terms`), where the default world spends its time; the direct path keeps
+    the NumPy form, which the tests hold the compiled one to."""
     trajectory = _trajectory(burst, model, states)
     linearize = getattr(burst.measurement_function, "linearize", None)
     if linearize is None:
-        white, local, predictions = _whiteners(burst, trajectory), None, _predictions(burst, trajectory)
-    else:
-        mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
-        values, local, receiver = linearize(
-            trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position
-        )
-        white = inverse_cholesky(burst.noise_covariance + receiver_noise(receiver, *burst.navigation_sd))
-        predictions = values + trajectory[..., -2:]
-    return white, _whitened(burst, white, predictions).reshape(len(states), -1), local
+        white, predictions = _whiteners(burst, trajectory), _predictions(burst, trajectory)
+        return white, _whitened(burst, white, predictions).reshape(len(states), -1), None
+    mobile, mobile_velocity = burst.receiver_positions[None], burst.receiver_velocities[None]
+    values, local, receiver = linearize(
+        trajectory[..., 0:3], trajectory[..., 3:6], mobile, mobile_velocity, burst.fixed_position
+    )
+    white, residual = kernels.window_terms(
+        values,
+        receiver,
+        states[:, -2:],  # the biases stay constant along a trajectory
+        burst.measurements,
+        burst.noise_covariance,
+        burst.navigation_sd,
+        burst.residual_period,
+    )
+    return white, residual.reshape(len(states), -1), local
 
 
 def _jacobian(burst, model, states, white, local=None) -> np.ndarray:
@@ -136,10 +147,13 @@ def _chained_jacobian(burst, model, states, white, local) -> np.ndarray:
     """The measurement model's d[RD, RRD]/d[p, v] along each trajectory (``local``, (C, K, 2, 6), closed
     form), chained with d[p, v](t_k)/d state of the motion model (its
     :meth:`~aasl_gym.filters.MotionModel.trajectory_jacobian`), whitened: (C, 2K, n). The biases add to
-    the prediction and stay constant along a trajectory: their columns are unit vectors."""
+    the prediction and stay constant along a trajectory: their columns are unit vectors. Compiled
+    (:func:`aasl_gym.kernels.whitened_chain`) for a model with a ``linearize`` method, as in :func:`_evaluate`."""
     count, dim = states.shape
     moving = dim - 2
     motion = model.trajectory_jacobian(states, burst.times - burst.times[-1])  # (C, K, 6, moving)
+    if hasattr(burst.measurement_function, "linearize"):
+        return kernels.whitened_chain(local, motion, white).reshape(count, -1, dim)
     jacobian = np.zeros(local.shape[:-1] + (dim,))
     jacobian[..., :moving] = local @ motion
     jacobian[..., 0, dim - 2] = jacobian[..., 1, dim - 1] = 1.0

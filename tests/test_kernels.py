@@ -1,12 +1,13 @@
 """The compiled loops (:mod:`aasl_gym.kernels`) against NumPy: the sine and cosine against the C library's,
-the phasor model's batched shapes against one point at a time, and the tone's compiled envelope against
-its NumPy form."""
+the phasor model's batched shapes against one point at a time, a window fit's per-sample terms against
+their NumPy forms, and the tone's compiled envelope against its NumPy form (to the last bit)."""
 
 import numpy as np
 import pytest
 
 from aasl_gym import geometry, kernels, synthesis
-from aasl_gym.measurement_models import FrameAveragedPhasor, Propagation, frame_offsets
+from aasl_gym.initializers import inverse_cholesky, whiten
+from aasl_gym.measurement_models import FrameAveragedPhasor, Propagation, frame_offsets, receiver_noise
 
 PROPAGATION = Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5)
 FIXED = np.array([0.0, 0.0, -0.96])
@@ -102,3 +103,33 @@ def test_the_compiled_tone_envelope_is_the_numpy_one_to_the_last_bit(phase, monk
     assert (kernels.tone_envelope is not None) and compiled.shape == (2, len(times)) and compiled.dtype == complex
     monkeypatch.setattr(kernels, "tone_envelope", lambda *_: None)
     np.testing.assert_array_equal(compiled, synthesis.received_pressure(*arguments))
+
+
+def test_the_window_terms_are_the_numpy_whitener_and_residual():
+    """R_eff's whitener and the whitened, wrapped residual against NumPy's receiver noise, 2 x 2 inverse
+    Cholesky factor and wrap, for random Jacobians and a residual that crosses the wrap; W^T W is R_eff^-1."""
+    rng = np.random.default_rng(3)
+    values, receiver = rng.normal(0, 2.0, (4, 7, 2)), rng.normal(0, 1.0, (4, 7, 2, 6))
+    biases, measured = rng.normal(0, 0.5, (4, 2)), rng.normal(0, 2.0, (7, 2))
+    noise, navigation_sd, period = np.array([[0.01, 0.002], [0.002, 0.004]]), (0.05, 0.02), 1.5
+    white, residual = kernels.window_terms(values, receiver, biases, measured, noise, navigation_sd, period)
+    effective = noise + receiver_noise(receiver, *navigation_sd)
+    np.testing.assert_allclose(white, inverse_cholesky(effective), rtol=1e-13)
+    np.testing.assert_allclose(np.swapaxes(white, -1, -2) @ white, np.linalg.inv(effective), rtol=1e-10)
+    error = measured - (values + biases[:, None])
+    error[..., 0] = geometry.wrap_to_period(error[..., 0], period)
+    np.testing.assert_allclose(residual, whiten(inverse_cholesky(effective), error), rtol=0, atol=1e-12)
+    _, unwrapped = kernels.window_terms(values, receiver, biases, measured, noise, navigation_sd, None)
+    raw = measured - (values + biases[:, None])
+    np.testing.assert_allclose(unwrapped, whiten(inverse_cholesky(effective), raw), rtol=0, atol=1e-12)
+
+
+def test_the_whitened_chain_is_the_numpy_product():
+    """W [local @ motion | I_2] against NumPy's batched products, a broadcast motion Jacobian included (the
+    linear models hand one over)."""
+    rng = np.random.default_rng(4)
+    local, white = rng.normal(size=(3, 5, 2, 6)), np.tril(rng.normal(size=(3, 5, 2, 2)))
+    motion = np.broadcast_to(rng.normal(size=(5, 6, 6)), (3, 5, 6, 6))
+    chain = kernels.whitened_chain(local, motion, white)
+    unwhitened = np.concatenate([local @ motion, np.broadcast_to(np.eye(2), (3, 5, 2, 2))], axis=-1)
+    np.testing.assert_allclose(chain, white @ unwhitened, rtol=1e-12, atol=1e-12)

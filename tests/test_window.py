@@ -149,13 +149,18 @@ def test_the_chained_jacobian_is_the_difference_jacobian(motion_model, measureme
     white = _whiteners(burst, _trajectory(burst, model, states))
     chained = _jacobian(burst, model, states, white)
     # What a fit's trial hands over (the frame model's values, whitener and local Jacobian from one set
-    # of multipath factors) is what the separate evaluations give, to the last bit.
+    # of multipath factors, through the compiled per-sample terms) is what the separate NumPy evaluations
+    # give: to the last bit for the direct path (NumPy either way), to rounding for the frame model.
     evaluated_white, residual, local = _evaluate(burst, model, states)
-    assert np.array_equal(evaluated_white, white)
-    assert np.array_equal(residual, whitened_residuals(burst, model, states, white).reshape(3, -1))
+    separate = whitened_residuals(burst, model, states, white).reshape(3, -1)
+    np.testing.assert_allclose(evaluated_white, white, rtol=1e-13, atol=0)
+    np.testing.assert_allclose(residual, separate, rtol=0, atol=1e-12 * np.abs(separate).max())
+    assert np.array_equal(residual, whitened_residuals(burst, model, states).reshape(3, -1))
     assert (local is None) == (measurement is direct_measurement)
-    if local is not None:
-        assert np.array_equal(_jacobian(burst, model, states, white, local), chained)
+    if local is None:
+        assert np.array_equal(evaluated_white, white) and np.array_equal(residual, separate)
+    else:
+        np.testing.assert_allclose(_jacobian(burst, model, states, white, local), chained, rtol=1e-12, atol=1e-12)
     # The reference takes a finer step than the fits' differences: near an interference null, and along
     # an acceleration that moves a 30 s window's far end by 450 times its step, 0.1 mm carries the frame
     # model's curvature (off by up to a quarter of a column there).
