@@ -354,6 +354,7 @@ def tone_envelope(
     return envelope
 
 
+@_compile
 def _window_terms(values, receiver, biases, measured, noise, variances, period, white, residual):
     """For every start c and sample k: R_eff = R_ac + H_r diag(variances) H_r^T, its whitener W = L^-1 (R_eff =
     L L^T; lower triangular) into ``white`` (C, K, 2, 2), and W (z_k - h_ck - b_c) into ``residual`` (C, K, 2),

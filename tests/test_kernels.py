@@ -2,6 +2,7 @@
 the phasor model's batched shapes against one point at a time, a window fit's per-sample terms against
 their NumPy forms, and the tone's compiled envelope against its NumPy form (to the last bit)."""
 
+import numba
 import numpy as np
 import pytest
 
@@ -133,3 +134,11 @@ def test_the_whitened_chain_is_the_numpy_product():
     chain = kernels.whitened_chain(local, motion, white)
     unwhitened = np.concatenate([local @ motion, np.broadcast_to(np.eye(2), (3, 5, 2, 2))], axis=-1)
     np.testing.assert_allclose(chain, white @ unwhitened, rtol=1e-12, atol=1e-12)
+
+
+def test_every_loop_is_compiled():
+    """A loop that lost its decorator still gives the right numbers, a hundred times slower: the tests above
+    cannot tell."""
+    loops = ("_sincos_loop", "_phasor_loop", "_frame_combine", "_tone_angles", "_add_phasors")
+    for name in loops + ("_window_terms", "_whitened_chain"):
+        assert isinstance(getattr(kernels, name), numba.core.dispatcher.Dispatcher), name
