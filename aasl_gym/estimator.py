@@ -104,7 +104,6 @@ from aasl_gym.filters import (
     make_motion_model,
     merwe_weights,
     predict_together,
-    update_together,
     whole_periods,
 )
 from aasl_gym.fisher import information_prior
@@ -978,9 +977,14 @@ class SourceTracker:
             z = self._reanchor(z, predicted[0].ukf, sigma_z[0], noise + extra[0])
         self.main_measurement = PairFrame(z, noise, None)
         kept = []
-        for i in update_together([h.ukf for h in predicted], z, noise + extra, sigma_z, self.residual):
-            hypothesis = predicted[i]
+        for hypothesis, predicted_z, extra_noise in zip(predicted, sigma_z, extra):
             ukf = hypothesis.ukf
+            try:
+                # h was evaluated for the whole bank at once: this h hands back the hypothesis's share.
+                # (mypy cannot type a lambda whose default binds the loop's value.)
+                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.residual)  # type: ignore[misc]
+            except np.linalg.LinAlgError:
+                continue
             hypothesis.log_weight += ukf.log_likelihood
             hypothesis.nis.append(ukf.nis)
             if not (self._implausible(ukf, time) or (not self.recovers and self._inconsistent(hypothesis, time))):

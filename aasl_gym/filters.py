@@ -455,8 +455,8 @@ def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> lis
     its own :meth:`UnscentedKalmanFilter.predict` would (the same operations on each one's slice of the stacked
     arrays); the indices of those that predicted. Where a covariance breaks, the filters predict one by one and
     those whose covariance breaks are left out (as after their own failed predict)."""
-    if not filters:
-        return []
+    if len(filters) < 2:  # stacking costs more than it saves for one filter
+        return [i for i, f in enumerate(filters) if _predicted_alone(f, dt)]
     first = filters[0]
     model, spread = first.model, first.spread
     try:
@@ -473,42 +473,6 @@ def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> lis
     for f, (x, covariance), sigmas_f in zip(filters, reflected, predicted_sigmas):
         f.x, f.P, f.sigmas_f = x.copy(), covariance.copy(), sigmas_f
     return list(range(len(filters)))
-
-
-def update_together(
-    filters: Sequence[UnscentedKalmanFilter],
-    z: np.ndarray,
-    noise: np.ndarray,
-    sigma_measurements: np.ndarray,
-    residual: Callable[[np.ndarray, np.ndarray], np.ndarray],
-) -> list[int]:
-    """Update predicted ``filters`` (one set of weights) with one measurement ``z`` (2,) as a batch, each exactly as
-    its own :meth:`UnscentedKalmanFilter.update` would: ``noise`` (H, 2, 2) each one's R, ``sigma_measurements``
-    (H, 2n+1, 2) h at each one's sigma points, ``residual(z, zp)`` the innovation (batched over zp). The indices
-    of those updated; one whose innovation covariance is not positive definite is left as it was."""
-    first = filters[0]
-    sigmas = np.stack([f.sigmas_f for f in filters])  # type: ignore[misc]  # set by predict()
-    means = np.stack([f.x for f in filters])
-    predicted = first.Wm @ sigma_measurements
-    deviations = sigma_measurements - predicted[:, None]
-    s = (np.swapaxes(deviations, 1, 2) * first.Wc) @ deviations + noise  # the innovation covariances
-    cross = (np.swapaxes(sigmas - means[:, None], 1, 2) * first.Wc) @ deviations
-    determinants = s[:, 0, 0] * s[:, 1, 1] - s[:, 0, 1] * s[:, 1, 0]
-    inverses = np.stack([np.stack([s[:, 1, 1], -s[:, 0, 1]], -1), np.stack([-s[:, 1, 0], s[:, 0, 0]], -1)], -2)
-    with np.errstate(divide="ignore", invalid="ignore"):  # a zero determinant's filter is left out below
-        inverses /= determinants[:, None, None]
-    gains = cross @ inverses
-    innovations = residual(z, predicted)
-    updated = [int(i) for i in np.flatnonzero(determinants > 0)]
-    for i in updated:
-        f, gain, y, s_inv = filters[i], gains[i], innovations[i], inverses[i]
-        f.S, f.y = s[i], y
-        f.x = f.x + gain @ y
-        covariance = f.P - gain @ s[i] @ gain.T
-        f.P = 0.5 * (covariance + covariance.T)
-        f.nis = float(y @ s_inv @ y)
-        f.log_likelihood = -0.5 * (f.nis + np.log(determinants[i]) + 2 * np.log(2 * np.pi))
-    return updated
 
 
 def _stacked_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> np.ndarray:

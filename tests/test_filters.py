@@ -7,7 +7,7 @@ from scipy.integrate import quad_vec, solve_ivp
 from scipy.stats import multivariate_normal
 
 from aasl_gym.config import FilterConfig
-from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter, merwe_sigma_points, predict_together, update_together
+from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter, merwe_sigma_points, predict_together
 from aasl_gym.measurement_models import direct_measurement
 
 FIXED = np.array([0.0, 0, -0.96])
@@ -87,38 +87,6 @@ def test_a_batch_predicts_each_filter_as_it_predicts_alone(name):
             for attribute in ("x", "P", "sigmas_f"):
                 assert np.array_equal(getattr(batch[i], attribute), getattr(alone[i], attribute)), attribute
         assert batch[1].x[2] < -1.0 and batch[1].x[5] < 0  # reflected: back below the bound, going down
-
-
-def test_a_batch_updates_each_filter_as_it_updates_alone():
-    """``update_together`` against each filter's own ``update``, to the last bit, with a wrapped innovation and
-    a noise of its own per filter; one whose innovation covariance is not positive definite is left out."""
-    model = MOTION_MODELS["cv"](FilterConfig(motion_model="cv"))
-    rng = np.random.default_rng(3)
-    mobile, mobile_velocity = np.array([12.0, -4.0, -6.0]), np.array([1.0, 0.5, 0.0])
-    hx = hx_factory(mobile, mobile_velocity)
-
-    def residual(measured, predicted):
-        difference = measured - predicted
-        difference[..., 0] = (difference[..., 0] + 0.75) % 1.5 - 0.75
-        return difference
-
-    batch, alone = [UnscentedKalmanFilter(model) for _ in range(4)], [UnscentedKalmanFilter(model) for _ in range(4)]
-    for b, a in zip(batch, alone):
-        x, root = np.r_[rng.normal(0, 10, 3), rng.normal(0, 0.5, 5)], rng.normal(0, 0.2, (8, 8))
-        for ukf in (a, b):
-            ukf.initialize(x, root @ root.T + 0.01 * np.eye(8))
-            ukf.predict(0.2)
-    noise = np.array([np.diag([0.05**2, 0.02**2]) * (1 + i) for i in range(4)])
-    noise[2] = np.diag([-100.0, 0.0])  # no innovation covariance (a negative determinant): left out
-    z = hx(batch[0].x[None])[0] + [0.7, 0.01]
-    sigma_measurements = np.stack([hx(ukf.sigmas_f) for ukf in batch])
-    assert update_together(batch, z, noise, sigma_measurements, residual) == [0, 1, 3]
-    for i in (0, 1, 3):
-        alone[i].update(z, noise[i], hx, residual)
-        for attribute in ("x", "P", "y", "S", "nis", "log_likelihood"):
-            assert np.array_equal(getattr(batch[i], attribute), getattr(alone[i], attribute)), attribute
-    with pytest.raises(np.linalg.LinAlgError):
-        alone[2].update(z, noise[2], hx, residual)
 
 
 def test_equals_linear_kalman_filter_on_a_linear_model():
