@@ -83,7 +83,8 @@ def whitened_residuals(
 ) -> np.ndarray:
     """W_k (z_k - h(x(t_k)) - b) of each state (C, n) at every sample: (C, K, 2), the RD taken as the
     burst says (:func:`~aasl_gym.initializers.periodic_residual`), ``white`` each trajectory's own
-    R_eff whitener unless given (then as a fit weighs its trial states, :func:`_evaluate`)."""
+    R_eff whitener. Without ``white`` they are the residuals a fit weighs its trial states with
+    (:func:`_evaluate`)."""
     if white is None:
         return _evaluate(burst, model, states)[1].reshape(len(states), -1, 2)
     return _whitened(burst, white, _predictions(burst, _trajectory(burst, model, states)))

@@ -100,8 +100,17 @@ def test_the_compiled_tone_envelope_is_the_numpy_one_to_the_last_bit(phase, monk
     paths = synthesis.path_sources(np.array([5.0, 3.0, -10.0]), np.array([0.3, 0.1, 0.0]), True, 60.0, -0.9, 0.3)
     receivers, velocities = np.array([[20.0, -4.0, -6.0], FIXED]), np.array([[1.0, 0.5, 0.0], [0.0, 0.0, 0.0]])
     arguments = (waveform, times, 57.3, paths, receivers, velocities, 1500.0, 1.0e3, True, 1000.0)
+    original, took = kernels.tone_envelope, []
+
+    def spy(*values):
+        envelope = original(*values)
+        took.append(envelope is not None)
+        return envelope
+
+    monkeypatch.setattr(kernels, "tone_envelope", spy)
     compiled = synthesis.received_pressure(*arguments)
-    assert (kernels.tone_envelope is not None) and compiled.shape == (2, len(times)) and compiled.dtype == complex
+    assert took == [phase <= kernels.SINCOS_LIMIT]  # the kernel ran, and declined only out of range
+    assert compiled.shape == (2, len(times)) and compiled.dtype == complex
     monkeypatch.setattr(kernels, "tone_envelope", lambda *_: None)
     np.testing.assert_array_equal(compiled, synthesis.received_pressure(*arguments))
 
