@@ -130,7 +130,6 @@ from aasl_gym.measurement_models import (
 )
 from aasl_gym.motion import Box, receiver_region
 from aasl_gym.search import (
-    DISTINCT,
     LEAD_IN,
     LOCAL_HALF_WIDTH,
     LOCAL_POOL,
@@ -859,7 +858,8 @@ class SourceTracker:
         fine fit as they are: the coarse fit is biased by the ripple it ignores (metres near the
         surface), and from there the fine fit can settle in a wrong dip that beats a right filter.
         So do the phasor search's ``pool`` (P, n) at the window's end (start index -1): those that pass
-        become the pool (:meth:`_pool_at`), and those not within ``search.DISTINCT`` of a better fit compete.
+        become the pool (:meth:`_pool_at`). Of all fine fits that pass, those not within ``search.DISTINCT`` of a better
+        one compete.
         """
         ini = self.config.initializer
         prior_mean, prior_sd = self._window_prior(states)
@@ -887,28 +887,17 @@ class SourceTracker:
             return coarse
         fine_covariances = _covariances(fine.information, ini.covariance_inflation)
         passed = passed[np.argsort(fine.costs[passed], kind="stable")]
-        passed = self._distinct_fine(passed, top, fine.states)
+        settled = top[passed]  # starts whose fine fit passed (one in a better fit's dip is resolved into it)
+        # Fits from different starts in one dip are one hypothesis: a bank of copies of a filter costs as many updates
+        # a step (7-8 copies through the second half of default-world CV episodes, session 28).
+        passed = passed[distinct_best(fine.states[passed], fine.costs[passed], len(passed))]
         best_cost = fine.costs[passed[0]]
         resolved = [
             (top[i], fine.states[i], fine_covariances[i], -0.5 * (fine.costs[i] - best_cost), True) for i in passed
         ]
         # The coarse fits that were not resolved follow, half the pruning ratio behind the resolved ones.
         behind = -0.5 * self.config.filter.prune_log_ratio
-        return resolved + [(i, x, p, w + behind, False) for i, x, p, w, _ in coarse if i not in top[passed]]
-
-    @staticmethod
-    def _distinct_fine(passed: np.ndarray, top: np.ndarray, states: np.ndarray) -> np.ndarray:
-        """Of the fine fits ``passed`` (best first), the better of each start's (``top``: its index) and,
-        of the pool's (index -1), those not within ``search.DISTINCT`` of a better fit."""
-        kept: list[int] = []
-        for i in passed:
-            if top[i] >= 0:
-                duplicate = any(top[j] == top[i] for j in kept)
-            else:
-                duplicate = any(np.linalg.norm(states[i, 0:3] - states[j, 0:3]) <= DISTINCT for j in kept)
-            if not duplicate:
-                kept.append(int(i))
-        return np.array(kept, dtype=int)
+        return resolved + [(i, x, p, w + behind, False) for i, x, p, w, _ in coarse if i not in settled]
 
     def _bank_from_fits(self, fits: list[tuple[int, np.ndarray, np.ndarray, float, bool]], time: float) -> None:
         """The bank becomes one fresh filter per window fit (:meth:`_fit_window`), started at ``time``."""
