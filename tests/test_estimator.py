@@ -128,6 +128,23 @@ def test_a_recovery_in_the_default_world_searches_the_ball_about_a_lost_filter()
         assert min(errors[150:]) > 5.0
 
 
+def test_fine_fits_in_one_dip_are_one_hypothesis():
+    """A re-seed's fine fits that land within ``search.DISTINCT`` of a better one are dropped, whatever their start:
+    the likeliest filter given three times, as three starts that resolved the ripple, makes one hypothesis (one per
+    start, three copies of one filter, until session 28), and none of those starts comes back as an unresolved
+    coarse fit."""
+    env = AASLEnv(EnvConfig().replace(source={"motion": "static"}), patrol="helix")
+    env.reset(seed=4)
+    for _ in range(150):
+        info = env.step(np.zeros(3))[4]
+    tracker = env.tracker
+    assert tracker.bank[0].resolved and info["position_error"] < 0.5
+    states = np.repeat(tracker.ukf.x[None], 3, axis=0)
+    fits = tracker._fit_window(tracker._window_length(info["time"]), states, [0, 1, 2])
+    assert len(fits) == 1 and fits[0][4]  # resolved
+    assert np.linalg.norm(fits[0][1][0:3] - info["source_position"]) < 0.5
+
+
 def test_the_local_search_leads_its_finds_into_the_long_windows_basin():
     """A long phasor window's basin is narrow. Sixteen synthetic finds near a still source (sd 0.1 m and 0.05 m/s off
     it, on its whole-period sheet) at 50 s of a default-world helix episode are fitted as a re-seed fits its pool, on
