@@ -37,7 +37,7 @@ cost and seldom beats such a filter). Fresh hypotheses and running filters are w
 chi-square (a fresh one next to a running filter on its sheet yields to it), and with
 ``filter.window_fit`` the best ``initializer.hypotheses`` are refined by the sliding-window MAP
 (:mod:`aasl_gym.window`; under the phasor model a second fit resolves the ripple, kept only where it
-explains the window).
+explains the window, and fits from different starts that land in one dip make one hypothesis).
 
 The phasor search. Under reflections LC-MAP's coarse candidates land metres from a moving source,
 outside the basin of the phasor model's window fit. Once an episode, at the first re-seed whose
@@ -889,7 +889,7 @@ class SourceTracker:
         passed = passed[np.argsort(fine.costs[passed], kind="stable")]
         settled = top[passed]  # starts whose fine fit passed (one in a better fit's dip is resolved into it)
         # Fits from different starts in one dip are one hypothesis: a bank of copies of a filter costs as many updates
-        # a step (7-8 copies through the second half of default-world CV episodes, session 28).
+        # a step (3-6 copies through the second half of default-world CV episodes, session 28).
         passed = passed[distinct_best(fine.states[passed], fine.costs[passed], len(passed))]
         best_cost = fine.costs[passed[0]]
         resolved = [
