@@ -886,7 +886,6 @@ class SourceTracker:
         if passed.size == 0:
             return coarse
         fine_covariances = _covariances(fine.information, ini.covariance_inflation)
-        passed = passed[np.argsort(fine.costs[passed], kind="stable")]
         settled = top[passed]  # starts whose fine fit passed (one in a better fit's dip is resolved into it)
         # Fits from different starts in one dip are one hypothesis: a bank of copies of a filter costs as many updates
         # a step (3-6 copies through the second half of default-world CV episodes, session 28).
