@@ -270,11 +270,15 @@ def frame_phasor(
     for the model."""
     shape, rows = _rows(position, mobile, velocity, mobile_velocity)
     offsets, fixed = np.asarray(offsets, dtype=float), _fixed_point(fixed)
-    blocks = [
-        _frame_block(rows[:, start : start + CHUNK], fixed, offsets, propagation)
-        for start in range(0, max(rows.shape[1], 1), CHUNK)
-    ]
-    out = blocks[0] if len(blocks) == 1 else np.concatenate(blocks, axis=1)
+    count = rows.shape[1]
+    if count <= CHUNK:
+        out = _frame_block(rows, fixed, offsets, propagation)
+    else:
+        # Each block straight into its columns: a list of blocks concatenated held twice the memory, whose fresh pages
+        # cost more than the loops (the search from the prior's 27,000 columns: 6.8 -> 1.9 ms a pass).
+        out = np.empty((26, count))
+        for start in range(0, count, CHUNK):
+            out[:, start : start + CHUNK] = _frame_block(rows[:, start : start + CHUNK], fixed, offsets, propagation)
     columns = out.T
     return (
         columns[:, 0:2].reshape(shape + (2,)),

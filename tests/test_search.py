@@ -145,6 +145,23 @@ def test_distinct_best_keeps_the_better_of_close_states_best_first():
     assert distinct_best(states, costs, limit=1).tolist() == [3]
 
 
+def test_distinct_best_decides_at_the_threshold_as_the_norm_does():
+    """States within rounding of ``DISTINCT`` from a better one, on both sides of it, and a NaN: all distances at
+    once keep and drop exactly the states that a norm per pair does."""
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(600, 3))
+    factors = 1 + np.array([-2e-16, -1e-16, 0.0, 1e-16, 2e-16, 1e-12])[np.arange(600) % 6]
+    states = np.zeros((601, 8))
+    states[1:, 0:3] = directions / np.linalg.norm(directions, axis=1)[:, None] * DISTINCT * factors[:, None]
+    states[7, 1] = np.nan
+    costs = np.arange(601.0)
+    apart = [i for i in range(1, 601) if np.linalg.norm(states[i, 0:3] - states[0, 0:3]) > DISTINCT]
+    assert 0 < len(apart) < 599  # both sides of the threshold are there
+    for i in range(1, 601):
+        pair = distinct_best(states[[0, i]], costs[[0, i]], limit=2).tolist()
+        assert pair == ([0, 1] if i in apart else [0]), i
+
+
 def test_the_track_search_stays_in_the_water_column_near_the_surface():
     """A CV source 3 m below the surface (the slab's top at 2 m), 40 s of the frame model heard from a helix
     at 7-11 m, and a filter 1 m above and 0.8 m beside it: the track search's lattice reaches above the slab,
