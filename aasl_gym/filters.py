@@ -162,6 +162,18 @@ class MotionModel:
         trajectory (the biases do not); each model gives it in closed form."""
         raise NotImplementedError
 
+    def free_motion_matrix(self, lags: np.ndarray) -> np.ndarray | None:
+        """Where the free motion is linear in the state, one matrix for every state: d[p, v](t_k) / d x of it
+        (K, 6, n - 2), over the components that move the trajectory; else None. A trajectory is then that matrix
+        times the state, folded into :attr:`fold_bounds`, and its Jacobian the matrix with the fold's sign on its z
+        and v_z rows: what a compiled window fit computes itself instead of reading (C, K, n) and (C, K, 6, n - 2)."""
+        return None
+
+    @property
+    def fold_bounds(self) -> tuple[float, float] | None:
+        """(z_min, z_max) (m) that :meth:`trajectory` folds into, or None."""
+        return self.depth_bounds if self.fold_trajectories else None
+
     def _folded(self, jacobian: np.ndarray, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         """A free trajectory's Jacobian (C, K, 6, m) with the fold's sign (see :meth:`_fold`) on its z and
         v_z rows where the fold mirrored the state. A free motion's vertical part is the same in every
@@ -215,11 +227,18 @@ class LinearMotionModel(MotionModel):
         """:meth:`MotionModel.trajectory_jacobian`: the transition of each moving component's unit vector,
         sign-flipped in z and v_z where a fold mirrored the state. Without folding it is a read-only view
         shared by all the states."""
-        moving = self.dim - 2
         lags = np.asarray(lags, dtype=float)
-        units = np.broadcast_to(np.eye(self.dim)[:moving], (len(lags), moving, self.dim))
-        matrix = np.swapaxes(self._advance(units, lags[:, None, None])[..., 0:6], -1, -2)  # (K, 6, moving)
+        matrix = self._free_matrix(lags)
         return self._folded(np.broadcast_to(matrix, (len(states),) + matrix.shape), states, lags)
+
+    def free_motion_matrix(self, lags: np.ndarray) -> np.ndarray | None:
+        """:meth:`MotionModel.free_motion_matrix`: the transition of each moving component's unit vector."""
+        return self._free_matrix(np.asarray(lags, dtype=float))
+
+    def _free_matrix(self, lags: np.ndarray) -> np.ndarray:
+        moving = self.dim - 2
+        units = np.broadcast_to(np.eye(self.dim)[:moving], (len(lags), moving, self.dim))
+        return np.swapaxes(self._advance(units, lags[:, None, None])[..., 0:6], -1, -2)
 
 
 class ConstantVelocity(LinearMotionModel):
@@ -310,6 +329,11 @@ class ConstantAcceleration(LinearMotionModel):
         if self.speed_limit is not None:
             trajectory[..., 3:6] = self.velocity(trajectory)
         return trajectory
+
+    def free_motion_matrix(self, lags: np.ndarray) -> np.ndarray | None:
+        """:meth:`MotionModel.free_motion_matrix`: the free motion's, or None with a speed limit (the lag it is
+        reached at moves with the state)."""
+        return super().free_motion_matrix(lags) if self.speed_limit is None else None
 
     def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         """:meth:`MotionModel.trajectory_jacobian`: the free motion's (:class:`LinearMotionModel`), or with a

@@ -93,6 +93,50 @@ def sincos(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return sine.reshape(x.shape), cosine.reshape(x.shape)
 
 
+# Cephes' arctangent (S. L. Moshier, 1984-2000): atan(t) = t + t z P(z) / Q(z), z = t^2, for |t| <= tan(pi/8).
+_AP0, _AP1, _AP2 = -8.750608600031904122785e-01, -1.615753718733365076637e01, -7.500855792314704667340e01
+_AP3, _AP4 = -1.228866684490136173410e02, -6.485021904942025371773e01
+_AQ0, _AQ1, _AQ2 = 2.485846490142306297962e01, 1.650270098316988542046e02, 4.328810604912902668951e02
+_AQ3, _AQ4 = 4.853903996359136964868e02, 1.945506571482613964425e02
+_TAN_PI_8 = 0.41421356237309503
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _atan2(y: float, x: float) -> float:
+    """atan2(y, x) (rad), branch-free so that a loop calling it vectorises (the C library's is one call per
+    element). The angle of the smaller over the larger of |x| and |y| is taken to |t| <= tan(pi/8) by
+    atan(t) = pi/4 + atan((t - 1) / (t + 1)), then placed in its octant; signed zeros as NumPy's. Within 3 ulp of
+    ``np.arctan2`` (``tests/test_kernels.py``)."""
+    ax, ay = abs(x), abs(y)
+    steep = ay > ax
+    small, large = (ax if steep else ay), (ay if steep else ax)
+    t = small / large if large > 0.0 else 0.0
+    upper = t > _TAN_PI_8
+    t = (t - 1.0) / (t + 1.0) if upper else t
+    z = t * t
+    p = (((_AP0 * z + _AP1) * z + _AP2) * z + _AP3) * z + _AP4
+    q = ((((z + _AQ0) * z + _AQ1) * z + _AQ2) * z + _AQ3) * z + _AQ4
+    angle = t + t * z * p / q
+    angle = angle + 0.25 * math.pi if upper else angle
+    angle = 0.5 * math.pi - angle if steep else angle
+    angle = math.pi - angle if math.copysign(1.0, x) < 0.0 else angle
+    return math.copysign(angle, y)
+
+
+@_compile
+def _atan2_loop(y, x, out):
+    for i in range(x.shape[0]):
+        out[i] = _atan2(y[i], x[i])
+
+
+def arctan2(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """:func:`_atan2` over two 1-D arrays of the same length: what the tests hold to ``np.arctan2``."""
+    y, x = np.ascontiguousarray(y, dtype=float), np.ascontiguousarray(x, dtype=float)
+    out = np.empty_like(x)
+    _atan2_loop(y, x, out)
+    return out
+
+
 @numba.njit(inline="always", error_model="numpy")
 def _receiver(sx, sy, sz, rx, ry, rz, depth, surface_gain, bed_gain, k):
     """At one receiver (rx, ry, rz) for the source (sx, sy, sz): the horizontal offset source - receiver
@@ -439,3 +483,455 @@ def whitened_chain(local: np.ndarray, motion: np.ndarray, white: np.ndarray) -> 
     out = np.empty((count, samples, 2, moving + 2))
     _whitened_chain(local, motion, white, out)
     return out
+
+
+# Starts per block of :func:`_fit_terms`: its scratch rows (about a hundred per start) then stay in the core's caches.
+FIT_BLOCK = 64
+LANES = 8  # starts per pass of :func:`_fit_terms`' vectorised loops as LLVM compiles them (AVX2: 2 x 4 doubles)
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _chain(local, sign, white, rows, i, j, m0, m1, m2, m3, m4, m5):
+    """Column j of sample's whitened Jacobian for block column i: W [local @ motion[:, j]], ``motion``'s column
+    (m0..m5) with the fold's ``sign`` on its z and v_z rows (exact: a factor of +-1)."""
+    rd = 0.0
+    rd += local[0, i] * m0
+    rd += local[1, i] * m1
+    rd += local[2, i] * (sign * m2)
+    rd += local[3, i] * m3
+    rd += local[4, i] * m4
+    rd += local[5, i] * (sign * m5)
+    rrd = 0.0
+    rrd += local[6, i] * m0
+    rrd += local[7, i] * m1
+    rrd += local[8, i] * (sign * m2)
+    rrd += local[9, i] * m3
+    rrd += local[10, i] * m4
+    rrd += local[11, i] * (sign * m5)
+    rows[0, j, i] = white[0, i] * rd
+    rows[1, j, i] = white[1, i] * rd + white[2, i] * rrd
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _lane_states(states, motion, points, k, start, width, fold, lanes):
+    """The source's position and velocity at sample k (``lanes`` rows 0:6) and the fold's sign there (row 6) for the
+    block's ``width`` starts from ``start``: from ``points`` (6, K, C) where the trajectories are given (the signs
+    already in ``motion``), else the free motion ``motion[k]`` (6, m) times the block's ``states`` (n, B), folded
+    into ``fold`` (z_min, slab span; a span of 0 for none) as :meth:`aasl_gym.filters.MotionModel.trajectory` folds."""
+    if motion.shape[3] > 1:
+        for q in range(6):
+            for i in range(width):
+                lanes[q, i] = points[q, k, start + i]
+        for i in range(width):
+            lanes[6, i] = 1.0
+        return
+    for q in range(6):
+        for i in range(width):
+            lanes[q, i] = 0.0
+    for j in range(motion.shape[2]):
+        m0, m1, m2 = motion[k, 0, j, 0], motion[k, 1, j, 0], motion[k, 2, j, 0]
+        m3, m4, m5 = motion[k, 3, j, 0], motion[k, 4, j, 0], motion[k, 5, j, 0]
+        for i in range(width):
+            x = states[j, i]
+            lanes[0, i] += m0 * x
+            lanes[1, i] += m1 * x
+            lanes[2, i] += m2 * x
+            lanes[3, i] += m3 * x
+            lanes[4, i] += m4 * x
+            lanes[5, i] += m5 * x
+    low, span = fold[0], fold[1]
+    for i in range(width):
+        lanes[6, i] = 1.0
+        if span > 0.0:
+            phase = (lanes[2, i] - low) % (2 * span)
+            mirrored = phase > span
+            lanes[2, i] = low + (2 * span - phase if mirrored else phase)
+            lanes[5, i] = -lanes[5, i] if mirrored else lanes[5, i]
+            lanes[6, i] = -1.0 if mirrored else 1.0
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _frame_at_sample(lanes, k, width, receivers, fixed, offsets, channel, rows):
+    """The apparent RD (``rows[:, 0]``) and its gradients in the source's and the mobile's positions (``rows[:, 1:4]``,
+    ``rows[:, 4:7]``) at each frame offset of sample k (``rows`` (S, 7, B)), for the source states in ``lanes``
+    (:func:`_lane_states`). One array out, so that the loop vectorises (see the module's note)."""
+    depth, surface_gain, bed_gain, wavenumber = channel[0], channel[1], channel[2], channel[3]
+    fx, fy, fz = fixed[0], fixed[1], fixed[2]
+    for s in range(offsets.shape[0]):
+        tau = offsets[s]
+        mx, my = receivers[0, k] + tau * receivers[3, k], receivers[1, k] + tau * receivers[4, k]
+        mz = receivers[2, k] + tau * receivers[5, k]
+        for i in range(width):
+            sx, sy = lanes[0, i] + tau * lanes[3, i], lanes[1, i] + tau * lanes[4, i]
+            sz = lanes[2, i] + tau * lanes[5, i]
+            row = _pair(sx, sy, sz, mx, my, mz, fx, fy, fz, depth, surface_gain, bed_gain, wavenumber)
+            rows[s, 0, i] = row[0] + (_atan2(row[4], row[3]) - _atan2(row[2], row[1])) / wavenumber
+            rows[s, 1, i], rows[s, 2, i], rows[s, 3, i] = row[5], row[6], row[7]
+            rows[s, 4, i], rows[s, 5, i], rows[s, 6, i] = row[8], row[9], row[10]
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _frame_mean_slope(width, offsets, period, rows, unwrapped, slips, value, local, receiver):
+    """:func:`_frame_combine` for one sample of a block (``rows`` from :func:`_frame_at_sample`): [mean, slope] into
+    ``value`` (2, B), their derivatives in [p, v] into ``local`` (12, B) and in [p_m, v_m] into ``receiver``
+    (12, B), each a 2 x 6 block row by row."""
+    frame = offsets.shape[0]
+    spread = 0.0
+    for s in range(frame):
+        spread += offsets[s] * offsets[s]
+    for i in range(width):
+        slips[i], value[0, i], value[1, i] = 0.0, 0.0, 0.0
+    for r in range(12):
+        for i in range(width):
+            local[r, i], receiver[r, i] = 0.0, 0.0
+    for s in range(frame):
+        for i in range(width):
+            if s > 0:
+                slips[i] += np.rint((rows[s, 0, i] - rows[s - 1, 0, i]) / period)
+            unwrapped[s, i] = rows[s, 0, i] - slips[i] * period
+            value[0, i] += unwrapped[s, i] / frame
+    for s in range(frame):
+        slope_weight = offsets[s] / spread
+        for i in range(width):
+            value[1, i] += (unwrapped[s, i] - value[0, i]) * slope_weight
+    for first, out in ((1, local), (4, receiver)):
+        for c in range(3):
+            for s in range(frame):
+                tau = offsets[s]
+                mean_weight, slope_weight = 1.0 / frame, tau / spread
+                for i in range(width):
+                    g = rows[s, first + c, i]
+                    out[c, i] += g * mean_weight
+                    out[3 + c, i] += g * mean_weight * tau
+                    out[6 + c, i] += g * slope_weight
+                    out[9 + c, i] += g * slope_weight * tau
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _sample_terms(k, width, states, measured, noise, variances, period, robust, value, receiver, white, error):
+    """R_eff's whitener (``white`` rows w00, w10, w11), the whitened residual and its IRLS weight (``error`` rows
+    e0, e1, v0, v1) and its loss (row 4) at sample k, as :func:`_window_terms` and the soft-L1 loss give them."""
+    position_variance, velocity_variance = variances[0], variances[1]
+    dim = states.shape[0]
+    for i in range(width):
+        r00, r01, r11 = noise[0, 0], noise[1, 0], noise[1, 1]
+        for j in range(6):
+            variance = position_variance if j < 3 else velocity_variance
+            rd, rrd = receiver[j, i], receiver[6 + j, i]
+            r00 += variance * rd * rd
+            r01 += variance * rd * rrd
+            r11 += variance * rrd * rrd
+        a = math.sqrt(r00)
+        b = r01 / a
+        d = math.sqrt(r11 - b * b)
+        w00, w10, w11 = 1.0 / a, -b / (a * d), 1.0 / d
+        rd_error = measured[k, 0] - (value[0, i] + states[dim - 2, i])
+        rrd_error = measured[k, 1] - (value[1, i] + states[dim - 1, i])
+        if period > 0.0:  # wrapped by floor, which vectorises (Python's % on floats is a call to fmod)
+            rd_error -= period * math.floor((rd_error + 0.5 * period) / period)
+        e0, e1 = w00 * rd_error, w10 * rd_error + w11 * rrd_error
+        white[0, i], white[1, i], white[2, i] = w00, w10, w11
+        error[0, i], error[1, i] = e0, e1
+        if robust:
+            root0, root1 = math.sqrt(1 + e0 * e0), math.sqrt(1 + e1 * e1)
+            error[2, i], error[3, i] = 1 / root0, 1 / root1
+            error[4, i] = 2 * (root0 - 1) + 2 * (root1 - 1)
+        else:
+            error[2, i], error[3, i] = 1.0, 1.0
+            error[4, i] = e0 * e0 + e1 * e1
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _block_terms(states, start, width, motion, points, fold, data, scratch, loss, information, gradient):
+    """:func:`fit_terms`' sums for one block: the loss (B,), J^T V J (n, n, B; its upper triangle) and J^T V W r
+    (n, B) of the block's ``width`` states (n, B), the starts ``start`` onwards of ``points`` and ``motion``.
+    ``data`` and ``scratch`` are tuples of the pass's constants and work arrays (see :func:`_fit_terms`)."""
+    receivers, fixed, offsets, channel, measured, noise, variances, period, robust, wavelength = data
+    lanes, rows_at_offsets, unwrapped, slips, value, local, receiver, white, error, rows = scratch
+    moving = motion.shape[2]
+    dim = moving + 2
+    shared = motion.shape[3] == 1
+    information[:] = 0.0
+    gradient[:] = 0.0
+    loss[:] = 0.0
+    for k in range(measured.shape[0]):
+        _lane_states(states, motion, points, k, start, width, fold, lanes)
+        _frame_at_sample(lanes, k, width, receivers, fixed, offsets, channel, rows_at_offsets)
+        _frame_mean_slope(width, offsets, wavelength, rows_at_offsets, unwrapped, slips, value, local, receiver)
+        _sample_terms(k, width, states, measured, noise, variances, period, robust, value, receiver, white, error)
+        for j in range(moving):
+            if shared:
+                m0, m1, m2 = motion[k, 0, j, 0], motion[k, 1, j, 0], motion[k, 2, j, 0]
+                m3, m4, m5 = motion[k, 3, j, 0], motion[k, 4, j, 0], motion[k, 5, j, 0]
+                for i in range(width):
+                    _chain(local, lanes[6, i], white, rows, i, j, m0, m1, m2, m3, m4, m5)
+            else:
+                for i in range(width):
+                    c = start + i
+                    _chain(
+                        local, 1.0, white, rows, i, j, motion[k, 0, j, c], motion[k, 1, j, c],
+                        motion[k, 2, j, c], motion[k, 3, j, c], motion[k, 4, j, c], motion[k, 5, j, c],
+                    )  # fmt: skip
+        for i in range(width):  # the biases' unit columns, whitened
+            rows[0, dim - 2, i], rows[1, dim - 2, i] = white[0, i], white[1, i]
+            rows[0, dim - 1, i], rows[1, dim - 1, i] = 0.0, white[2, i]
+        for a in range(dim):
+            for i in range(width):
+                weighted0, weighted1 = error[2, i] * rows[0, a, i], error[3, i] * rows[1, a, i]
+                gradient[a, i] += weighted0 * error[0, i] + weighted1 * error[1, i]
+            for b in range(a, dim):
+                for i in range(width):
+                    weighted0, weighted1 = error[2, i] * rows[0, a, i], error[3, i] * rows[1, a, i]
+                    information[a, b, i] += weighted0 * rows[0, b, i] + weighted1 * rows[1, b, i]
+        for i in range(width):
+            loss[i] += error[4, i]
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _scratch(frame, dim, block):
+    """The work arrays of :func:`_block_terms` for ``frame`` offsets, states of size ``dim`` and ``block`` lanes."""
+    return (
+        np.empty((7, block)), np.empty((frame, 7, block)), np.empty((frame, block)), np.empty(block),
+        np.empty((2, block)), np.empty((12, block)), np.empty((12, block)), np.empty((3, block)),
+        np.empty((5, block)), np.empty((2, dim, block)),
+    )  # fmt: skip
+
+
+@_compile
+def _fit_terms(states, motion, points, fold, data, loss, normal, pull):
+    """See :func:`fit_terms`: ``states`` (n, C), ``data`` the constants of :func:`_block_terms`. Loops over blocks of
+    starts, then samples; each stage's innermost loop runs over the block's starts, so that it vectorises, and each
+    start sums its samples in order, whatever the vector width."""
+    dim, count = states.shape
+    block = FIT_BLOCK
+    scratch = _scratch(data[2].shape[0], dim, block)
+    cost, information, gradient = np.empty(block), np.empty((dim, dim, block)), np.empty((dim, block))
+    for start in range(0, count, block):
+        width = min(block, count - start)
+        lanes = np.ascontiguousarray(states[:, start : start + block])
+        _block_terms(lanes, start, width, motion, points, fold, data, scratch, cost, information, gradient)
+        for i in range(width):
+            c = start + i
+            loss[c] = cost[i]
+            for a in range(dim):
+                pull[c, a] = gradient[a, i]
+                for b in range(a, dim):
+                    normal[c, a, b] = normal[c, b, a] = information[a, b, i]
+
+
+def _fold(bounds: tuple[float, float] | None) -> np.ndarray:
+    """[z_min, span] (m) of a fold's slab for the compiled pass; a span of 0 for no fold."""
+    return np.array([0.0, 0.0] if bounds is None else [bounds[0], bounds[1] - bounds[0]], dtype=float)
+
+
+def _constants(receivers, fixed, offsets, propagation, measured, noise, navigation_sd, period, robust) -> tuple:
+    """What :func:`_block_terms` reads besides the states, as its arrays and numbers."""
+    p = propagation
+    channel = np.array([p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber], dtype=float)
+    return (
+        np.ascontiguousarray(np.concatenate(receivers, axis=1).T, dtype=float),  # (6, K)
+        _fixed_point(fixed),
+        np.asarray(offsets, dtype=float),
+        channel,
+        np.ascontiguousarray(measured, dtype=float),
+        np.asarray(noise, dtype=float),
+        np.square(np.asarray(navigation_sd, dtype=float)),
+        0.0 if period is None else float(period),
+        bool(robust),
+        2 * np.pi / p.wavenumber,  # the frame's unwrapping period
+    )
+
+
+def fit_terms(
+    states: np.ndarray,
+    motion: np.ndarray,
+    trajectory: np.ndarray | None,
+    fold: tuple[float, float] | None,
+    receivers: tuple[np.ndarray, np.ndarray],
+    fixed: np.ndarray,
+    offsets: np.ndarray,
+    propagation,
+    measured: np.ndarray,
+    noise: np.ndarray,
+    navigation_sd: tuple[float, float],
+    period: float | None,
+    robust: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A window fit's Gauss-Newton terms under the frame-averaged phasor model, in one compiled pass per start:
+    the loss sum_k rho(|W_k r_k|^2) (C,), the normal matrix J^T V J (C, n, n) and J^T V W r (C, n), with r_k = z_k -
+    h(x(t_k)) - b, W_k R_eff's whitener along the start's own trajectory, J the whitened prediction's Jacobian
+    and V the IRLS weights of soft-L1 (``robust``) or ones. The same as :func:`frame_phasor`, :func:`window_terms`
+    and :func:`whitened_chain` followed by NumPy's sums, to rounding (``tests/test_window.py``).
+
+    ``states`` (C, n) in the filter's layout at the window's last sample, [b_p, b_v] last. Either ``motion`` is one
+    free motion for every state, d[p, v](t_k)/d x (K, 6, n - 2)
+    (:meth:`aasl_gym.filters.MotionModel.free_motion_matrix`),
+    ``trajectory`` None, and the pass runs each state along it, folded into ``fold`` (z_min, z_max; m) unless None;
+    or ``motion`` is each state's own (C, K, 6, n - 2) and ``trajectory`` (C, K, 6+) its source positions and
+    velocities (m, m/s). ``receivers`` the mobile's positions and velocities (K, 3 each), ``fixed`` (3,), the
+    frame's ``offsets`` (s), ``propagation`` a :class:`aasl_gym.measurement_models.Propagation`, ``measured``
+    (K, 2), ``noise`` R_ac (2, 2), ``navigation_sd`` (m, m/s), the RD residual taken modulo ``period`` (m) unless
+    None."""
+    count, dim = states.shape
+    # The loops run over the starts LANES at a time; a remainder runs one start at a time, several times slower
+    # a start. So the starts are padded to a multiple of LANES with copies of the last, whose terms are dropped.
+    padded = -(-count // LANES) * LANES
+    take = np.minimum(np.arange(padded), count - 1)
+    if trajectory is None:
+        motion, points = np.ascontiguousarray(motion[..., None]), np.empty((6, 1, 1))
+    else:
+        motion = np.ascontiguousarray(motion[take].transpose(1, 2, 3, 0))
+        points = np.ascontiguousarray(trajectory[take, :, 0:6].transpose(2, 1, 0))  # (6, K, C): the starts innermost
+    loss, normal, pull = np.empty(padded), np.empty((padded, dim, dim)), np.empty((padded, dim))
+    constants = _constants(receivers, fixed, offsets, propagation, measured, noise, navigation_sd, period, robust)
+    _fit_terms(
+        np.ascontiguousarray(states[take].T, dtype=float), motion, points, _fold(fold), constants, loss, normal, pull
+    )
+    return loss[:count], normal[:count], pull[:count]
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _solve(matrix, right, out):
+    """``out`` = matrix^-1 right for one n x n system: Gaussian elimination with partial pivoting, in place."""
+    dim = right.shape[0]
+    for a in range(dim):
+        pivot = a
+        for r in range(a + 1, dim):
+            if abs(matrix[r, a]) > abs(matrix[pivot, a]):
+                pivot = r
+        if pivot != a:
+            for b in range(dim):
+                matrix[a, b], matrix[pivot, b] = matrix[pivot, b], matrix[a, b]
+            right[a], right[pivot] = right[pivot], right[a]
+        for r in range(a + 1, dim):
+            factor = matrix[r, a] / matrix[a, a]
+            for b in range(a, dim):
+                matrix[r, b] -= factor * matrix[a, b]
+            right[r] -= factor * right[a]
+    for a in range(dim - 1, -1, -1):
+        total = right[a]
+        for b in range(a + 1, dim):
+            total -= matrix[a, b] * out[b]
+        out[a] = total / matrix[a, a]
+
+
+@_compile
+def _damped_steps(normal, damping, gradient, steps):
+    """``steps`` (C, n) = -(N + lambda diag(N))^-1 g for each start's normal matrix N (C, n, n), damping lambda (C,)
+    and gradient g (C, n)."""
+    count, dim = gradient.shape
+    matrix, right = np.empty((dim, dim)), np.empty(dim)
+    for c in range(count):
+        for a in range(dim):
+            for b in range(dim):
+                matrix[a, b] = normal[c, a, b]
+            matrix[a, a] += damping[c] * normal[c, a, a]
+            right[a] = -gradient[c, a]
+        _solve(matrix, right, steps[c])
+
+
+def damped_steps(normal: np.ndarray, damping: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+    """Levenberg-Marquardt's steps (C, n) with Marquardt's scaling: -(N + lambda diag(N))^-1 g for normal matrices
+    N (C, n, n), dampings lambda (C,) and gradients g (C, n); the same as ``np.linalg.solve`` to rounding, without
+    its per-call overhead on a few hundred 8 x 8 systems."""
+    steps = np.empty(gradient.shape)
+    _damped_steps(
+        np.ascontiguousarray(normal, dtype=float),
+        np.asarray(damping, float),
+        np.ascontiguousarray(gradient, dtype=float),
+        steps,
+    )
+    return steps
+
+
+@_compile
+def _fit(states, prior_mean, prior_sd, motion, fold, data, iterations, max_position_step, costs, information):
+    """See :func:`fit`: ``states`` (n, C) are fitted in place, block by block, each block's Levenberg-Marquardt
+    iterations run through in cache. The same steps as :func:`aasl_gym.window.fit_window`'s loop."""
+    dim, count = states.shape
+    block = FIT_BLOCK
+    scratch = _scratch(data[2].shape[0], dim, block)
+    no_points = np.empty((6, 1, 1))
+    loss, normal, pull = np.empty(block), np.empty((dim, dim, block)), np.empty((dim, block))
+    trial_loss, trial_normal, trial_pull = np.empty(block), np.empty((dim, dim, block)), np.empty((dim, block))
+    prior, trial_prior, cost, damping = np.empty((dim, block)), np.empty((dim, block)), np.empty(block), np.empty(block)
+    matrix, right, step = np.empty((dim, dim)), np.empty(dim), np.empty(dim)
+    prior_information = 1 / prior_sd**2
+    for start in range(0, count, block):
+        width = min(block, count - start)
+        x = np.ascontiguousarray(states[:, start : start + block])
+        trial = np.empty_like(x)
+        _block_terms(x, start, width, motion, no_points, fold, data, scratch, loss, normal, pull)
+        for i in range(width):
+            cost[i], damping[i] = loss[i], 1e-3
+            for a in range(dim):
+                prior[a, i] = (x[a, i] - prior_mean[a, start + i]) / prior_sd[a]
+            for a in range(dim):
+                cost[i] += prior[a, i] ** 2
+        for _ in range(iterations):
+            for i in range(width):
+                for a in range(dim):
+                    for b in range(a, dim):
+                        matrix[a, b] = matrix[b, a] = normal[a, b, i]
+                    matrix[a, a] += prior_information[a]
+                    matrix[a, a] += damping[i] * matrix[a, a]
+                    # The residuals fall as the predictions rise: the gradient carries -J.
+                    right[a] = -(prior[a, i] / prior_sd[a] - pull[a, i])
+                _solve(matrix, right, step)
+                length = math.sqrt(step[0] * step[0] + step[1] * step[1] + step[2] * step[2])
+                shrink = min(1.0, max_position_step / max(length, 1e-12))
+                for a in range(dim):
+                    trial[a, i] = x[a, i] + step[a] * shrink
+            _block_terms(
+                trial, start, width, motion, no_points, fold, data, scratch, trial_loss, trial_normal, trial_pull
+            )
+            for i in range(width):
+                trial_cost = trial_loss[i]
+                for a in range(dim):
+                    trial_prior[a, i] = (trial[a, i] - prior_mean[a, start + i]) / prior_sd[a]
+                for a in range(dim):
+                    trial_cost += trial_prior[a, i] ** 2
+                if trial_cost < cost[i]:
+                    cost[i], damping[i] = trial_cost, damping[i] / 3
+                    for a in range(dim):
+                        x[a, i], prior[a, i], pull[a, i] = trial[a, i], trial_prior[a, i], trial_pull[a, i]
+                        for b in range(a, dim):
+                            normal[a, b, i] = trial_normal[a, b, i]
+                else:
+                    damping[i] *= 4
+        for i in range(width):
+            c = start + i
+            costs[c] = cost[i]
+            for a in range(dim):
+                states[a, c] = x[a, i]
+                for b in range(a, dim):
+                    information[c, a, b] = information[c, b, a] = normal[a, b, i]
+                information[c, a, a] += prior_information[a]
+
+
+def fit(
+    states: np.ndarray,
+    prior_mean: np.ndarray,
+    prior_sd: np.ndarray,
+    motion: np.ndarray,
+    fold: tuple[float, float] | None,
+    burst_data: tuple,
+    iterations: int,
+    max_position_step: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt window fits under the frame-averaged phasor model, compiled whole, for a motion model
+    whose free motion is one matrix ``motion`` (K, 6, n - 2) for every state (folded into ``fold`` unless None):
+    from ``states`` (C, n), with the prior ``prior_mean`` (C, n) and ``prior_sd`` (n,), the fitted states (C, n),
+    their costs (C,) and information (C, n, n). ``burst_data`` are :func:`fit_terms`' arguments from ``receivers``
+    to ``robust``. See :func:`aasl_gym.window.fit_window`, whose loop over :func:`fit_terms` this is."""
+    count, dim = states.shape
+    padded = -(-count // LANES) * LANES  # see fit_terms
+    take = np.minimum(np.arange(padded), count - 1)
+    fitted = np.ascontiguousarray(states[take].T, dtype=float)
+    costs, information = np.empty(padded), np.empty((padded, dim, dim))
+    _fit(
+        fitted, np.ascontiguousarray(prior_mean[take].T, dtype=float), np.asarray(prior_sd, dtype=float),
+        np.ascontiguousarray(motion[..., None], dtype=float), _fold(fold), _constants(*burst_data), int(iterations),
+        float(max_position_step), costs, information,
+    )  # fmt: skip
+    return fitted.T[:count].copy(), costs[:count], information[:count]
