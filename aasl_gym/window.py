@@ -19,6 +19,13 @@ model) with the motion model's trajectory; a model without one is differenced ov
 (a few dozen model evaluations per step, and 0.1 mm steps blur an interference null). The information
 ``J^T W J`` at the solution is the covariance a filter restarts with.
 
+Three routes, one algorithm. Under the frame-averaged phasor model, where the default world spends its time,
+one compiled pass per start gives the loss and the normal equations (:func:`aasl_gym.kernels.fit_terms`); for a
+motion model whose free motion is one matrix for every state (CV, CA without a speed limit) the pass also runs
+and folds the trajectories and the whole fit is compiled (:func:`aasl_gym.kernels.fit`). Otherwise, and for the
+direct path, NumPy evaluates the terms. The routes agree to rounding (``tests/test_window.py``); the NumPy route
+keeps LAPACK's solve, so that the direct path's fits - every free-field study - are as they were to the last bit.
+
 References: K. Madsen, H. B. Nielsen, O. Tingleff, "Methods for non-linear least squares problems",
 2004 (the damping schedule); B. Triggs et al., "Bundle adjustment - a modern synthesis", 2000
 (robust costs by iteratively reweighted least squares).
