@@ -725,7 +725,7 @@ def _fit_terms(states, motion, points, fold, data, loss, normal, pull):
                     normal[c, a, b] = normal[c, b, a] = information[a, b, i]
 
 
-def _fold(bounds: tuple[float, float] | None) -> np.ndarray:
+def _fold_slab(bounds: tuple[float, float] | None) -> np.ndarray:
     """[z_min, span] (m) of a fold's slab for the compiled pass; a span of 0 for no fold."""
     return np.array([0.0, 0.0] if bounds is None else [bounds[0], bounds[1] - bounds[0]], dtype=float)
 
@@ -791,7 +791,14 @@ def fit_terms(
     loss, normal, pull = np.empty(padded), np.empty((padded, dim, dim)), np.empty((padded, dim))
     constants = _constants(receivers, fixed, offsets, propagation, measured, noise, navigation_sd, period, robust)
     _fit_terms(
-        np.ascontiguousarray(states[take].T, dtype=float), motion, points, _fold(fold), constants, loss, normal, pull
+        np.ascontiguousarray(states[take].T, dtype=float),
+        motion,
+        points,
+        _fold_slab(fold),
+        constants,
+        loss,
+        normal,
+        pull,
     )
     return loss[:count], normal[:count], pull[:count]
 
@@ -937,7 +944,7 @@ def fit(
     costs, information = np.empty(padded), np.empty((padded, dim, dim))
     _fit(
         fitted, np.ascontiguousarray(prior_mean[take].T, dtype=float), np.asarray(prior_sd, dtype=float),
-        np.ascontiguousarray(motion[..., None], dtype=float), _fold(fold), _constants(*burst_data), int(iterations),
-        float(max_position_step), costs, information,
+        np.ascontiguousarray(motion[..., None], dtype=float), _fold_slab(fold), _constants(*burst_data),
+        int(iterations), float(max_position_step), costs, information,
     )  # fmt: skip
     return fitted.T[:count].copy(), costs[:count], information[:count]

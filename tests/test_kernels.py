@@ -149,7 +149,16 @@ def test_every_loop_is_compiled():
     """A loop that lost its decorator still gives the right numbers, a hundred times slower: the tests above
     cannot tell."""
     loops = ("_sincos_loop", "_phasor_loop", "_frame_combine", "_tone_angles", "_add_phasors")
-    for name in loops + ("_window_terms", "_whitened_chain", "_atan2_loop", "_fit_terms", "_damped_steps"):
+    compiled = (
+        "_window_terms",
+        "_whitened_chain",
+        "_atan2_loop",
+        "_block_terms",
+        "_fit_terms",
+        "_fit",
+        "_damped_steps",
+    )
+    for name in loops + compiled:
         assert isinstance(getattr(kernels, name), numba.core.dispatcher.Dispatcher), name
 
 
