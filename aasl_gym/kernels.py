@@ -38,7 +38,7 @@ operation and is the same to the last bit (LLVM does not contract a multiply and
 unless told to); the loops above only agree with their NumPy forms to a few units in the last place.
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
-two seconds), later processes load it (about 0.1 s, at the first call).
+12 seconds, most of it the window fit's pass), later processes load it (about 0.15 s, at the first call).
 """
 
 from __future__ import annotations
