@@ -408,6 +408,15 @@ def tone_envelope(
     return envelope
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _whitener(r00, r01, r11):
+    """(w00, w10, w11): W = L^-1 for R = L L^T (lower triangular) of a 2 x 2 covariance [[r00, r01], [r01, r11]]."""
+    a = math.sqrt(r00)
+    b = r01 / a
+    d = math.sqrt(r11 - b * b)
+    return 1.0 / a, -b / (a * d), 1.0 / d
+
+
 @_compile
 def _window_terms(values, receiver, biases, measured, noise, variances, period, white, residual):
     """For every start c and sample k: R_eff = R_ac + H_r diag(variances) H_r^T, its whitener W = L^-1 (R_eff =
@@ -423,10 +432,7 @@ def _window_terms(values, receiver, biases, measured, noise, variances, period, 
                 r00 += variance * rd * rd
                 r01 += variance * rd * rrd
                 r11 += variance * rrd * rrd
-            a = math.sqrt(r00)
-            b = r01 / a
-            d = math.sqrt(r11 - b * b)
-            w00, w10, w11 = 1.0 / a, -b / (a * d), 1.0 / d
+            w00, w10, w11 = _whitener(r00, r01, r11)
             white[c, k, 0, 0], white[c, k, 0, 1], white[c, k, 1, 0], white[c, k, 1, 1] = w00, 0.0, w10, w11
             rd_error = measured[k, 0] - (values[c, k, 0] + biases[c, 0])
             rrd_error = measured[k, 1] - (values[c, k, 1] + biases[c, 1])
@@ -497,23 +503,24 @@ LANES = 8  # starts per pass of :func:`_fit_terms`' vectorised loops as LLVM com
 
 
 @numba.njit(inline="always", error_model="numpy")
+def _dot6(local, first, i, sign, m0, m1, m2, m3, m4, m5):
+    """sum_q local[first + q, i] m_q over q = 0..5, summed in order from zero, the fold's ``sign`` on m2 and m5."""
+    total = 0.0
+    total += local[first, i] * m0
+    total += local[first + 1, i] * m1
+    total += local[first + 2, i] * (sign * m2)
+    total += local[first + 3, i] * m3
+    total += local[first + 4, i] * m4
+    total += local[first + 5, i] * (sign * m5)
+    return total
+
+
+@numba.njit(inline="always", error_model="numpy")
 def _chain(local, sign, white, rows, i, j, m0, m1, m2, m3, m4, m5):
     """Column j of sample's whitened Jacobian for block column i: W [local @ motion[:, j]], ``motion``'s column
     (m0..m5) with the fold's ``sign`` on its z and v_z rows (exact: a factor of +-1)."""
-    rd = 0.0
-    rd += local[0, i] * m0
-    rd += local[1, i] * m1
-    rd += local[2, i] * (sign * m2)
-    rd += local[3, i] * m3
-    rd += local[4, i] * m4
-    rd += local[5, i] * (sign * m5)
-    rrd = 0.0
-    rrd += local[6, i] * m0
-    rrd += local[7, i] * m1
-    rrd += local[8, i] * (sign * m2)
-    rrd += local[9, i] * m3
-    rrd += local[10, i] * m4
-    rrd += local[11, i] * (sign * m5)
+    rd = _dot6(local, 0, i, sign, m0, m1, m2, m3, m4, m5)
+    rrd = _dot6(local, 6, i, sign, m0, m1, m2, m3, m4, m5)
     rows[0, j, i] = white[0, i] * rd
     rows[1, j, i] = white[1, i] * rd + white[2, i] * rrd
 
@@ -627,10 +634,7 @@ def _sample_terms(k, width, states, measured, noise, variances, period, robust, 
             r00 += variance * rd * rd
             r01 += variance * rd * rrd
             r11 += variance * rrd * rrd
-        a = math.sqrt(r00)
-        b = r01 / a
-        d = math.sqrt(r11 - b * b)
-        w00, w10, w11 = 1.0 / a, -b / (a * d), 1.0 / d
+        w00, w10, w11 = _whitener(r00, r01, r11)
         rd_error = measured[k, 0] - (value[0, i] + states[dim - 2, i])
         rrd_error = measured[k, 1] - (value[1, i] + states[dim - 1, i])
         if period > 0.0:  # wrapped by floor, which vectorises (Python's % on floats is a call to fmod)
