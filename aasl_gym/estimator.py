@@ -252,9 +252,20 @@ class Hypothesis:
 
 
 def _covariances(information: np.ndarray, inflation: float) -> np.ndarray:
-    """Symmetric covariances (H, n, n) from information matrices, times ``inflation``."""
-    covariances = np.linalg.inv(information) * inflation
+    """Symmetric covariances (H, n, n) from information matrices, times ``inflation``; NaN where an information is
+    singular (a fit its window leaves undetermined in some direction, which can start no filter)."""
+    try:
+        covariances = np.linalg.inv(information) * inflation
+    except np.linalg.LinAlgError:  # one by one: the same LAPACK call on each, NaN for the singular ones
+        covariances = np.stack([_inverse_or_nan(matrix) for matrix in information]) * inflation
     return 0.5 * (covariances + covariances.transpose(0, 2, 1))
+
+
+def _inverse_or_nan(matrix: np.ndarray) -> np.ndarray:
+    try:
+        return np.linalg.inv(matrix)
+    except np.linalg.LinAlgError:
+        return np.full(matrix.shape, np.nan)
 
 
 class SourceTracker:
@@ -883,9 +894,12 @@ class SourceTracker:
             best = distinct_best(fine.states[from_pool], fine.costs[from_pool], SEARCH_POOL)
             self.pool = fine.states[from_pool[best]]
             self.pool_time = burst.times[-1]
+        fine_covariances = _covariances(fine.information, ini.covariance_inflation)
+        # A fit ten metres off can sit where the model's gradients nearly vanish and its information is singular (a
+        # 2 m lake, a start 5 m above the surface): it starts no filter.
+        passed = passed[np.isfinite(fine_covariances[passed]).all(axis=(1, 2))]
         if passed.size == 0:
             return coarse
-        fine_covariances = _covariances(fine.information, ini.covariance_inflation)
         settled = top[passed]  # starts whose fine fit passed (one in a better fit's dip is resolved into it)
         # Fits from different starts in one dip are one hypothesis: a bank of copies of a filter costs as many updates
         # a step (3-6 copies through the second half of default-world CV episodes, session 28).

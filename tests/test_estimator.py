@@ -515,3 +515,20 @@ def test_the_history_gives_the_windows_a_deque_of_rows_gives():
                 np.testing.assert_array_equal(noise, np.mean(covariances, axis=0))
         for start in (-1.0, 0.2 * step - 0.6, 0.2 * step, 100.0):
             assert history.count_since(start) == sum(1 for row in reference if row[0] >= start - 1e-9)
+
+
+def test_a_singular_fit_information_gives_nan_not_an_error():
+    """A window fit its window leaves undetermined in some direction (singular information; a start far above a
+    2 m lake's surface did it in the lake study) gets a NaN covariance instead of stopping the episode; the others
+    get what the batched inverse gives them, to the last bit."""
+    from aasl_gym.estimator import _covariances
+
+    rng = np.random.default_rng(8)
+    jacobians = rng.normal(size=(3, 20, 4))
+    information = np.swapaxes(jacobians, 1, 2) @ jacobians
+    singular = information.copy()
+    singular[1] = np.outer(np.arange(1.0, 5.0), np.arange(1.0, 5.0))  # rank one
+    covariances = _covariances(singular, 1.5)
+    assert np.isnan(covariances[1]).all()
+    expected = _covariances(information[[0, 2]], 1.5)
+    assert np.array_equal(covariances[[0, 2]], expected)
