@@ -213,6 +213,7 @@ def _numpy_terms(burst: Burst, model: MotionModel, states: np.ndarray, robust: b
 def _phasor_data(burst: Burst, robust: bool) -> tuple:
     """What the compiled pass (:func:`aasl_gym.kernels.fit_terms`) reads of a frame-model burst, in its order."""
     phasor = burst.measurement_function
+    assert isinstance(phasor, FrameAveragedPhasor)  # the only model the pass knows
     return (
         (burst.receiver_positions, burst.receiver_velocities),
         burst.fixed_position,
