@@ -517,7 +517,7 @@ def _dot6(local, first, i, sign, m0, m1, m2, m3, m4, m5):
 
 @numba.njit(inline="always", error_model="numpy")
 def _chain(local, sign, white, rows, i, j, m0, m1, m2, m3, m4, m5):
-    """Column j of sample's whitened Jacobian for block column i: W [local @ motion[:, j]], ``motion``'s column
+    """Column j of the sample's whitened Jacobian for block column i: W [local @ motion[:, j]], ``motion``'s column
     (m0..m5) with the fold's ``sign`` on its z and v_z rows (exact: a factor of +-1)."""
     rd = _dot6(local, 0, i, sign, m0, m1, m2, m3, m4, m5)
     rrd = _dot6(local, 6, i, sign, m0, m1, m2, m3, m4, m5)
