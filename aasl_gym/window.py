@@ -22,9 +22,10 @@ model) with the motion model's trajectory; a model without one is differenced ov
 Three routes, one algorithm. Under the frame-averaged phasor model, where the default world spends its time,
 one compiled pass per start gives the loss and the normal equations (:func:`aasl_gym.kernels.fit_terms`); for a
 motion model whose free motion is one matrix for every state (CV, CA without a speed limit) the pass also runs
-and folds the trajectories and the whole fit is compiled (:func:`aasl_gym.kernels.fit`). Otherwise, and for the
-direct path, NumPy evaluates the terms. The routes agree to rounding (``tests/test_window.py``); the NumPy route
-keeps LAPACK's solve, so that the direct path's fits - every free-field study - are as they were to the last bit.
+and folds the trajectories and the whole fit is compiled (:func:`aasl_gym.kernels.fit`). For the direct path, and
+for fewer starts than one vector's worth (``kernels.LANES``), NumPy evaluates the terms. The routes agree to
+rounding (``tests/test_window.py``); the NumPy route keeps LAPACK's solve, so that the direct path's fits - every
+free-field study - are as they were to the last bit.
 
 References: K. Madsen, H. B. Nielsen, O. Tingleff, "Methods for non-linear least squares problems",
 2004 (the damping schedule); B. Triggs et al., "Bundle adjustment - a modern synthesis", 2000
