@@ -698,6 +698,15 @@ def _block_terms(states, start, width, motion, points, fold, data, scratch, loss
 
 
 @numba.njit(inline="always", error_model="numpy")
+def _store_symmetric(upper, i, out, c):
+    """``out[c]`` (n, n) = the symmetric matrix whose upper triangle is lane i's, ``upper[:, :, i]``."""
+    dim = out.shape[1]
+    for a in range(dim):
+        for b in range(a, dim):
+            out[c, a, b] = out[c, b, a] = upper[a, b, i]
+
+
+@numba.njit(inline="always", error_model="numpy")
 def _scratch(frame, dim, block):
     """The work arrays of :func:`_block_terms` for ``frame`` offsets, states of size ``dim`` and ``block`` lanes."""
     return (
@@ -725,8 +734,14 @@ def _fit_terms(states, motion, points, fold, data, loss, normal, pull):
             loss[c] = cost[i]
             for a in range(dim):
                 pull[c, a] = gradient[a, i]
-                for b in range(a, dim):
-                    normal[c, a, b] = normal[c, b, a] = information[a, b, i]
+            _store_symmetric(information, i, normal, c)
+
+
+def _padded(count: int) -> np.ndarray:
+    """Indices of ``count`` starts padded to a multiple of ``LANES`` with copies of the last. The loops run over the
+    starts LANES at a time; a remainder runs one start at a time, several times slower a start, so the pass takes
+    copies instead and drops their terms."""
+    return np.minimum(np.arange(-(-count // LANES) * LANES), count - 1)
 
 
 def _fold_slab(bounds: tuple[float, float] | None) -> np.ndarray:
@@ -783,10 +798,8 @@ def fit_terms(
     (K, 2), ``noise`` R_ac (2, 2), ``navigation_sd`` (m, m/s), the RD residual taken modulo ``period`` (m) unless
     None."""
     count, dim = states.shape
-    # The loops run over the starts LANES at a time; a remainder runs one start at a time, several times slower
-    # a start. So the starts are padded to a multiple of LANES with copies of the last, whose terms are dropped.
-    padded = -(-count // LANES) * LANES
-    take = np.minimum(np.arange(padded), count - 1)
+    take = _padded(count)
+    padded = len(take)
     if trajectory is None:
         motion, points = np.ascontiguousarray(motion[..., None]), np.empty((6, 1, 1))
     else:
@@ -919,10 +932,9 @@ def _fit(states, prior_mean, prior_sd, motion, fold, data, iterations, max_posit
         for i in range(width):
             c = start + i
             costs[c] = cost[i]
+            _store_symmetric(normal, i, information, c)
             for a in range(dim):
                 states[a, c] = x[a, i]
-                for b in range(a, dim):
-                    information[c, a, b] = information[c, b, a] = normal[a, b, i]
                 information[c, a, a] += prior_information[a]
 
 
@@ -942,8 +954,8 @@ def fit(
     their costs (C,) and information (C, n, n). ``burst_data`` are :func:`fit_terms`' arguments from ``receivers``
     to ``robust``. See :func:`aasl_gym.window.fit_window`, whose loop over :func:`fit_terms` this is."""
     count, dim = states.shape
-    padded = -(-count // LANES) * LANES  # see fit_terms
-    take = np.minimum(np.arange(padded), count - 1)
+    take = _padded(count)
+    padded = len(take)
     fitted = np.ascontiguousarray(states[take].T, dtype=float)
     costs, information = np.empty(padded), np.empty((padded, dim, dim))
     _fit(
