@@ -621,6 +621,51 @@ def _frame_mean_slope(width, offsets, period, rows, unwrapped, slips, value, loc
 
 
 @numba.njit(inline="always", error_model="numpy")
+def _direct_at_sample(lanes, k, width, receivers, fixed, value, local, receiver):
+    """The direct path's [RD, RRD] (``value`` (2, B)) and its Jacobians in [p, v] (``local`` (12, B)) and in [p_m, v_m]
+    (``receiver`` (12, B)) at sample k, laid out as :func:`_frame_mean_slope` lays out the frame model's: the closed
+    forms of :func:`aasl_gym.geometry.direct_jacobian` and :func:`aasl_gym.measurement_models.direct_receiver_jacobian`
+    (u the unit vectors from the hydrophones to the source, d the ranges, v_s - v_m the relative velocity)."""
+    mx, my, mz = receivers[0, k], receivers[1, k], receivers[2, k]
+    mvx, mvy, mvz = receivers[3, k], receivers[4, k], receivers[5, k]
+    fx, fy, fz = fixed[0], fixed[1], fixed[2]
+    for i in range(width):
+        vx, vy, vz = lanes[3, i], lanes[4, i], lanes[5, i]
+        ax, ay, az = lanes[0, i] - mx, lanes[1, i] - my, lanes[2, i] - mz
+        bx, by, bz = lanes[0, i] - fx, lanes[1, i] - fy, lanes[2, i] - fz
+        mobile_range = math.sqrt(ax * ax + ay * ay + az * az)
+        fixed_range = math.sqrt(bx * bx + by * by + bz * bz)
+        ax, ay, az = ax / mobile_range, ay / mobile_range, az / mobile_range
+        bx, by, bz = bx / fixed_range, by / fixed_range, bz / fixed_range
+        rx, ry, rz = vx - mvx, vy - mvy, vz - mvz
+        mobile_rate = rx * ax + ry * ay + rz * az
+        fixed_rate = vx * bx + vy * by + vz * bz
+        value[0, i], value[1, i] = mobile_range - fixed_range, mobile_rate - fixed_rate
+        # The mobile's share of dRRD/dp, (I - u_m u_m^T)(v_s - v_m) / d_m; dRRD/dp_m is its negative.
+        sx, sy, sz = (
+            (rx - ax * mobile_rate) / mobile_range,
+            (ry - ay * mobile_rate) / mobile_range,
+            (rz - az * mobile_rate) / mobile_range,
+        )
+        gx, gy, gz = ax - bx, ay - by, az - bz
+        local[0, i], local[1, i], local[2, i], local[3, i], local[4, i], local[5, i] = gx, gy, gz, 0.0, 0.0, 0.0
+        local[6, i] = sx - (vx - bx * fixed_rate) / fixed_range
+        local[7, i] = sy - (vy - by * fixed_rate) / fixed_range
+        local[8, i] = sz - (vz - bz * fixed_rate) / fixed_range
+        local[9, i], local[10, i], local[11, i] = gx, gy, gz
+        receiver[0, i], receiver[1, i], receiver[2, i], receiver[3, i], receiver[4, i], receiver[5, i] = (
+            -ax,
+            -ay,
+            -az,
+            0.0,
+            0.0,
+            0.0,
+        )
+        receiver[6, i], receiver[7, i], receiver[8, i] = -sx, -sy, -sz
+        receiver[9, i], receiver[10, i], receiver[11, i] = -ax, -ay, -az
+
+
+@numba.njit(inline="always", error_model="numpy")
 def _sample_terms(k, width, states, measured, noise, variances, period, robust, value, receiver, white, error):
     """R_eff's whitener (``white`` rows w00, w10, w11), the whitened residual and its IRLS weight (``error`` rows
     e0, e1, v0, v1) and its loss (row 4) at sample k, as :func:`_window_terms` and the soft-L1 loss give them."""
@@ -656,7 +701,7 @@ def _block_terms(states, start, width, motion, points, fold, data, scratch, loss
     """:func:`fit_terms`' sums for one block: the loss (B,), J^T V J (n, n, B; its upper triangle) and J^T V W r
     (n, B) of the block's ``width`` states (n, B), the starts ``start`` onwards of ``points`` and ``motion``.
     ``data`` and ``scratch`` are tuples of the pass's constants and work arrays (see :func:`_fit_terms`)."""
-    receivers, fixed, offsets, channel, measured, noise, variances, period, robust, wavelength = data
+    receivers, fixed, offsets, channel, measured, noise, variances, period, robust, wavelength, direct = data
     lanes, rows_at_offsets, unwrapped, slips, value, local, receiver, white, error, rows = scratch
     moving = motion.shape[2]
     dim = moving + 2
@@ -666,8 +711,11 @@ def _block_terms(states, start, width, motion, points, fold, data, scratch, loss
     loss[:] = 0.0
     for k in range(measured.shape[0]):
         _lane_states(states, motion, points, k, start, width, fold, lanes)
-        _frame_at_sample(lanes, k, width, receivers, fixed, offsets, channel, rows_at_offsets)
-        _frame_mean_slope(width, offsets, wavelength, rows_at_offsets, unwrapped, slips, value, local, receiver)
+        if direct:
+            _direct_at_sample(lanes, k, width, receivers, fixed, value, local, receiver)
+        else:
+            _frame_at_sample(lanes, k, width, receivers, fixed, offsets, channel, rows_at_offsets)
+            _frame_mean_slope(width, offsets, wavelength, rows_at_offsets, unwrapped, slips, value, local, receiver)
         _sample_terms(k, width, states, measured, noise, variances, period, robust, value, receiver, white, error)
         for j in range(moving):
             if shared:
@@ -740,7 +788,10 @@ def _fit_terms(states, motion, points, fold, data, loss, normal, pull):
 def _padded(count: int) -> np.ndarray:
     """Indices of ``count`` starts padded to a multiple of ``LANES`` with copies of the last. The loops run over the
     starts LANES at a time; a remainder runs one start at a time, several times slower a start, so the pass takes
-    copies instead and drops their terms."""
+    copies instead and drops their terms. Fewer than LANES starts run alone: one start's scalar loop costs less than
+    a vector's worth of copies. (Padding changes no start's result: each start sums its own samples in order.)"""
+    if count < LANES:
+        return np.arange(count)
     return np.minimum(np.arange(-(-count // LANES) * LANES), count - 1)
 
 
@@ -750,20 +801,23 @@ def _fold_slab(bounds: tuple[float, float] | None) -> np.ndarray:
 
 
 def _constants(receivers, fixed, offsets, propagation, measured, noise, navigation_sd, period, robust) -> tuple:
-    """What :func:`_block_terms` reads besides the states, as its arrays and numbers."""
+    """What :func:`_block_terms` reads besides the states, as its arrays and numbers; ``propagation`` None for the
+    direct path (no frame: ``offsets`` are not read)."""
+    direct = propagation is None
     p = propagation
-    channel = np.array([p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber], dtype=float)
+    channel = np.zeros(4) if direct else np.array([p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber])
     return (
         np.ascontiguousarray(np.concatenate(receivers, axis=1).T, dtype=float),  # (6, K)
         _fixed_point(fixed),
-        np.asarray(offsets, dtype=float),
+        np.zeros(0) if direct else np.asarray(offsets, dtype=float),
         channel,
         np.ascontiguousarray(measured, dtype=float),
         np.asarray(noise, dtype=float),
         np.square(np.asarray(navigation_sd, dtype=float)),
         0.0 if period is None else float(period),
         bool(robust),
-        2 * np.pi / p.wavenumber,  # the frame's unwrapping period
+        0.0 if direct else 2 * np.pi / p.wavenumber,  # the frame's unwrapping period
+        direct,
     )
 
 

@@ -48,7 +48,7 @@ from aasl_gym.initializers import (
     trajectory_whitener,
     whiten,
 )
-from aasl_gym.measurement_models import FrameAveragedPhasor, state_jacobian_function
+from aasl_gym.measurement_models import FrameAveragedPhasor, direct_measurement, state_jacobian_function
 
 STEP = 1e-4  # central-difference step in every state component (m, m/s, rad/s, m/s^2)
 MAX_POSITION_STEP = 5.0  # m: far from its basin a linearization is poor; no step moves further
@@ -211,15 +211,26 @@ def _numpy_terms(burst: Burst, model: MotionModel, states: np.ndarray, robust: b
     return np.sum(robust_loss(measurement**2, robust), axis=1), normal_equations
 
 
-def _phasor_data(burst: Burst, robust: bool) -> tuple:
-    """What the compiled pass (:func:`aasl_gym.kernels.fit_terms`) reads of a frame-model burst, in its order."""
-    phasor = burst.measurement_function
-    assert isinstance(phasor, FrameAveragedPhasor)  # the only model the pass knows
+def _compiled_model(burst: Burst, count: int) -> bool:
+    """Whether a fit of ``count`` starts on ``burst`` takes the compiled pass: the direct path always, the
+    frame-averaged phasor model from one vector's worth of starts (``kernels.LANES``). With fewer, NumPy, which
+    vectorises across the samples too, runs the phasor model faster (two starts along a 500-sample track: 0.35
+    against 0.6 ms a pass); the direct path is cheap enough that the pass wins even for one start, which then runs
+    alone (:func:`aasl_gym.kernels.fit`, unpadded)."""
+    model = burst.measurement_function
+    return model is direct_measurement or (isinstance(model, FrameAveragedPhasor) and count >= kernels.LANES)
+
+
+def _model_data(burst: Burst, robust: bool) -> tuple:
+    """What the compiled pass (:func:`aasl_gym.kernels.fit_terms`) reads of a burst, in its order."""
+    model = burst.measurement_function
+    direct = model is direct_measurement
+    assert direct or isinstance(model, FrameAveragedPhasor)  # the models the pass knows
     return (
         (burst.receiver_positions, burst.receiver_velocities),
         burst.fixed_position,
-        phasor.offsets,
-        phasor.propagation,
+        None if direct else model.offsets,
+        None if direct else model.propagation,
         burst.measurements,
         burst.noise_covariance,
         burst.navigation_sd,
@@ -235,7 +246,7 @@ def _compiled_terms(burst: Burst, model: MotionModel, states: np.ndarray, robust
     motion, trajectory = model.free_motion_matrix(lags), None
     if motion is None:  # the pass cannot run the states along the model itself
         motion, trajectory = model.trajectory_jacobian(states, lags), model.source_trajectory(states, lags)
-    loss, normal, pull = kernels.fit_terms(states, motion, trajectory, model.fold_bounds, *_phasor_data(burst, robust))
+    loss, normal, pull = kernels.fit_terms(states, motion, trajectory, model.fold_bounds, *_model_data(burst, robust))
     return loss, lambda rows: (normal[rows], pull[rows])
 
 
@@ -263,13 +274,11 @@ def fit_window(
     (soft-L1) are those of the current residuals (iteratively reweighted least squares). The route (see the
     module's note) follows the burst's measurement model, the motion model and the number of starts.
     """
-    # The compiled pass vectorises across the starts; with fewer than one vector's worth NumPy, which vectorises
-    # across the samples too, is faster (two starts along a 500-sample track: 0.35 against 0.6 ms a pass).
-    compiled = isinstance(burst.measurement_function, FrameAveragedPhasor) and len(states) >= kernels.LANES
+    compiled = _compiled_model(burst, len(states))
     motion = model.free_motion_matrix(burst.times - burst.times[-1]) if compiled else None
     if motion is not None:  # the pass runs the states along the model itself: the whole fit is compiled
         prior_mean = np.broadcast_to(prior_mean, np.shape(states))
-        data = _phasor_data(burst, robust)
+        data = _model_data(burst, robust)
         return WindowFit(
             *kernels.fit(states, prior_mean, prior_sd, motion, model.fold_bounds, data, iterations, MAX_POSITION_STEP)
         )
