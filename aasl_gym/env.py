@@ -11,12 +11,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from aasl_gym import metrics, rewards
+from aasl_gym import kernels, metrics, rewards
 from aasl_gym.config import PATROLS, ConfigError, EnvConfig, from_dict, load_config, merge, to_dict
 from aasl_gym.estimator import SourceTracker, TrackerOutput
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.fisher import InformationTracker, measurement_jacobian
-from aasl_gym.measurement_models import direct_measurement, navigation_covariance
+from aasl_gym.measurement_models import navigation_covariance
 from aasl_gym.motion import (
     NavigationError,
     SourceState,
@@ -454,9 +454,9 @@ class AASLEnv(gym.Env):
             "position_covariance": self.tracker.position_covariance,
             "measurement": self._last_measurement.copy(),
             "measured": received(z),
-            "measurement_true": direct_measurement(
+            "measurement_true": kernels.direct_path(
                 self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed
-            ),
+            )[0],
             "snr_db": float(10 * np.log10(np.min(self.sensor.snr()))),
             "initialized": out.initialized,
             "converged": bool(converged),

@@ -96,7 +96,7 @@ from functools import partial
 import numpy as np
 from scipy import stats
 
-from aasl_gym import geometry
+from aasl_gym import geometry, kernels
 from aasl_gym.config import EnvConfig
 from aasl_gym.extra_pairs import ExtraPairs, PairFrame
 from aasl_gym.filters import (
@@ -422,28 +422,28 @@ class SourceTracker:
             z, _, receiver = linearize(position, velocity, mobile, mobile_velocity, fixed)
         noise = np.zeros((len(sigmas), 2, 2))
         coarse = np.zeros(len(sigmas), dtype=bool)
+        direct_receiver = np.zeros(0)  # the direct path's receiver Jacobian, where the ripple needs it
         if self.ripple:
             assert self.correction_period is not None  # the ripple is the phasor model's, which has one
-            direct = direct_measurement(position, velocity, mobile, mobile_velocity, fixed)
+            direct, _, direct_receiver = kernels.direct_path(position, velocity, mobile, mobile_velocity, fixed)
             correction = z - direct
             centre = correction[:, :1]
             offset = geometry.wrap_to_period(correction[..., 0] - centre[..., 0], self.correction_period)
             correction[..., 0] = centre[..., 0] + offset
             z = direct + correction
             coarse = (position_sd > self.config.filter.ripple_lock_sd) & ~resolved
-            deviation = correction[coarse, 1:] - centre[coarse]
-            # The Merwe weights of rows 1..2n, 1 / (2 (n + lambda)), about the central point.
-            noise[coarse] = np.einsum("hsi,hsj->hij", deviation, deviation) / (2 * self.sigma_spread)
-            z[coarse] = direct[coarse] + centre[coarse]
-        jacobian = np.zeros((len(sigmas), 2, 6))
-        for model, rows in ((self.measurement_function, ~coarse), (direct_measurement, coarse)):
-            if not rows.any():
-                continue
-            if model is self.measurement_function and receiver is not None:
-                jacobian[rows] = receiver[rows, 0]
-            else:
-                at_mean = position[rows, 0], velocity[rows, 0]
-                jacobian[rows] = receiver_jacobian(model, *at_mean, mobile, mobile_velocity, fixed)
+            if coarse.any():
+                deviation = correction[coarse, 1:] - centre[coarse]
+                # The Merwe weights of rows 1..2n, 1 / (2 (n + lambda)), about the central point.
+                noise[coarse] = np.einsum("hsi,hsj->hij", deviation, deviation) / (2 * self.sigma_spread)
+                z[coarse] = direct[coarse] + centre[coarse]
+        if receiver is not None:
+            jacobian = receiver[:, 0].copy()
+        else:
+            at_mean = position[:, 0], velocity[:, 0]
+            jacobian = receiver_jacobian(self.measurement_function, *at_mean, mobile, mobile_velocity, fixed)
+        if coarse.any():  # under the ripple alone, where the direct path's came with its values
+            jacobian[coarse] = direct_receiver[coarse, 0]
         return z, noise, jacobian
 
     def residual(self, measured: np.ndarray, predicted: np.ndarray) -> np.ndarray:
@@ -984,7 +984,7 @@ class SourceTracker:
             try:
                 # h was evaluated for the whole bank at once: this h hands back the hypothesis's share.
                 # (mypy cannot type a lambda whose default binds the loop's value.)
-                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.residual)  # type: ignore[misc]
+                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.correction_period)  # type: ignore[misc]
             except np.linalg.LinAlgError:
                 continue
             hypothesis.log_weight += ukf.log_likelihood

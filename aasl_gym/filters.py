@@ -20,16 +20,21 @@ Navigation", 2001 (process-noise models, section 6.2).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy import linalg
 
+from aasl_gym import kernels
 from aasl_gym.config import FilterConfig
 from aasl_gym.motion import coordinated_turn_displacement
 
 BASE_DIM = 8  # [p, v, b_p, b_v]: the layout initializers produce
 LIMIT_GRAZE = 0.05  # a speed-limited CA's Jacobian: the least cosine between a and the velocity at the limit
+
+
+LOG_TWO_PI_SQUARED = 2 * math.log(2 * math.pi)  # the normalizer of a 2-D Gaussian's log density
 
 
 def _white_noise_blocks(dt: float, order: int) -> np.ndarray:
@@ -475,42 +480,29 @@ def merwe_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> 
 
 
 def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> list[int]:
-    """Predict ``filters`` (one motion model and one set of weights) ``dt`` seconds on as a batch, each exactly as
-    its own :meth:`UnscentedKalmanFilter.predict` would (the same operations on each one's slice of the stacked
-    arrays); the indices of those that predicted. Where a covariance breaks, the filters predict one by one and
-    those whose covariance breaks are left out (as after their own failed predict)."""
-    if len(filters) < 2:  # stacking costs more than it saves for one filter
-        return [i for i, f in enumerate(filters) if _predicted_alone(f, dt)]
+    """Predict ``filters`` (one motion model and one set of weights) ``dt`` seconds on as a batch, the sigma points and
+    the moments compiled (:func:`aasl_gym.kernels.sigma_points`, :func:`aasl_gym.kernels.sigma_moments`), each as its
+    own :meth:`UnscentedKalmanFilter.predict` would; the indices of those that predicted. A filter whose covariance
+    is not positive definite, before or after the prediction, is left out as it was."""
+    if not filters:
+        return []
     first = filters[0]
     model, spread = first.model, first.spread
-    try:
-        sigmas = _stacked_sigma_points(np.stack([f.x for f in filters]), np.stack([f.P for f in filters]), spread)
-        propagated = model.transition(sigmas, dt)
-        means = first.Wm @ propagated
-        deviations = propagated - means[:, None]
-        covariances = (np.swapaxes(deviations, 1, 2) * first.Wc) @ deviations + model.process_noise(dt)
-        reflected = [model.reflect(mean, covariance) for mean, covariance in zip(means, covariances)]
-        reflected_means, reflected_covariances = (np.stack(parts) for parts in zip(*reflected))
-        predicted_sigmas = _stacked_sigma_points(reflected_means, reflected_covariances, spread)
-    except np.linalg.LinAlgError:
-        return [i for i, f in enumerate(filters) if _predicted_alone(f, dt)]
-    for f, (x, covariance), sigmas_f in zip(filters, reflected, predicted_sigmas):
-        f.x, f.P, f.sigmas_f = x.copy(), covariance.copy(), sigmas_f
-    return list(range(len(filters)))
-
-
-def _stacked_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> np.ndarray:
-    """:func:`merwe_sigma_points` of H filters at once: means (H, n), covariances (H, n, n) -> (H, 2n+1, n)."""
-    root = np.swapaxes(np.linalg.cholesky(spread * covariance), 1, 2)
-    return np.concatenate([x[:, None, :], x[:, None, :] + root, x[:, None, :] - root], axis=1)
-
-
-def _predicted_alone(ukf: UnscentedKalmanFilter, dt: float) -> bool:
-    try:
-        ukf.predict(dt)
-    except np.linalg.LinAlgError:
-        return False
-    return True
+    sigmas, valid = kernels.sigma_points(np.stack([f.x for f in filters]), np.stack([f.P for f in filters]), spread)
+    means, covariances = kernels.sigma_moments(
+        model.transition(sigmas, dt), first.Wm, first.Wc, model.process_noise(dt)
+    )
+    reflected = [model.reflect(mean, covariance) for mean, covariance in zip(means, covariances)]
+    reflected_means, reflected_covariances = (np.stack(parts) for parts in zip(*reflected))
+    predicted_sigmas, predicted_valid = kernels.sigma_points(reflected_means, reflected_covariances, spread)
+    kept = [i for i in range(len(filters)) if valid[i] and predicted_valid[i]]
+    for i in kept:
+        filters[i].x, filters[i].P, filters[i].sigmas_f = (
+            reflected_means[i],
+            reflected_covariances[i],
+            predicted_sigmas[i],
+        )
+    return kept
 
 
 def whole_periods(
@@ -551,42 +543,31 @@ class UnscentedKalmanFilter:
         self.sigmas_f = None
 
     def predict(self, dt: float) -> None:
-        sigmas = merwe_sigma_points(self.x, self.P, self.spread)
-        propagated = self.model.transition(sigmas, dt)
-        self.x = self.Wm @ propagated
-        deviation = propagated - self.x
-        self.P = (deviation.T * self.Wc) @ deviation + self.model.process_noise(dt)
-        self.x, self.P = self.model.reflect(self.x, self.P)
-        self.sigmas_f = merwe_sigma_points(self.x, self.P, self.spread)
+        """Predict ``dt`` seconds on (:func:`predict_together` of this filter alone). Raises
+        ``numpy.linalg.LinAlgError`` where the covariance is not positive definite."""
+        if not predict_together([self], dt):
+            raise np.linalg.LinAlgError("the covariance is not positive definite")
 
     def update(
         self,
         z: np.ndarray,
         R: np.ndarray,
         hx: Callable[[np.ndarray], np.ndarray],
-        residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+        period: float | None = None,
     ) -> None:
-        """Update with measurement ``z``; ``residual(z, zp)`` is z - zp unless given (filterpy's
-        ``residual_z``: a wrapped component's innovation is taken modulo its period)."""
+        """Update with an [RD, RRD] measurement ``z`` and its noise R (2 x 2); the RD's innovation is taken modulo
+        ``period`` (m) where given (filterpy's ``residual_z`` for a wrapped component). The sums over the sigma
+        points, the gain and the new moments run compiled (:func:`aasl_gym.kernels.unscented_update`)."""
         if self.sigmas_f is None:
             raise RuntimeError("predict() must run before update()")
         sigmas_h = hx(self.sigmas_f)
-        zp = self.Wm @ sigmas_h
-        dz = sigmas_h - zp
-        self.S = (dz.T * self.Wc) @ dz + R
-        cross = ((self.sigmas_f - self.x).T * self.Wc) @ dz
-        s = self.S
-        det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+        det, x, covariance, nis, self.y, self.S = kernels.unscented_update(
+            self.sigmas_f, sigmas_h, self.x, self.P, self.Wm, self.Wc, R, z, period
+        )
         if not det > 0:
             raise np.linalg.LinAlgError("innovation covariance is not positive definite")
-        s_inv = np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
-        gain = cross @ s_inv
-        self.y = z - zp if residual is None else residual(z, zp)
-        self.x = self.x + gain @ self.y
-        self.P = self.P - gain @ s @ gain.T
-        self.P = 0.5 * (self.P + self.P.T)
-        self.nis = float(self.y @ s_inv @ self.y)
-        self.log_likelihood = -0.5 * (self.nis + np.log(det) + 2 * np.log(2 * np.pi))
+        self.x, self.P, self.nis = x, covariance, nis
+        self.log_likelihood = -0.5 * (nis + math.log(det) + LOG_TWO_PI_SQUARED)
 
     def update_stacked(self, innovation: np.ndarray, deviations: np.ndarray, R: np.ndarray) -> float:
         """Update with a measurement of any size m, given its innovation (m,), the predicted measurement at

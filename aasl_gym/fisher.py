@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aasl_gym import geometry
+from aasl_gym import kernels
 from aasl_gym.config import EnvConfig
 from aasl_gym.motion import source_region
 
@@ -42,7 +42,7 @@ def cv_transition_matrix(dt: float) -> np.ndarray:
 
 def measurement_jacobian(position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
     """d[RD + b_p, RRD + b_v] / d[p, v, b_p, b_v], shape (..., 2, 8) (direct path)."""
-    direct = geometry.direct_jacobian(position, velocity, mobile, mobile_velocity, fixed)
+    direct = kernels.direct_path(position, velocity, mobile, mobile_velocity, fixed)[1]
     jac = np.zeros(direct.shape[:-1] + (8,))
     jac[..., :6] = direct
     jac[..., 0, 6] = 1.0

@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import fft, integrate, signal
 
-from aasl_gym import geometry
+from aasl_gym import geometry, kernels
 from aasl_gym.bandpass import band_gain, noise_bandwidth
 from aasl_gym.synthesis import Channel, FrameFault, Waveform, path_sources, receiver_channels, synthesize
 
@@ -40,11 +40,7 @@ def saturated(samples: np.ndarray, share: float = 0.01) -> bool:
     clipped channel: an unclipped one reaches it once); a complex envelope's real and imaginary parts are
     tested apart."""
     samples = np.asarray(samples)
-    if np.iscomplexobj(samples):
-        samples = np.stack([samples.real, samples.imag])
-    magnitude = np.abs(samples)
-    at_peak = np.count_nonzero(magnitude >= magnitude.max(axis=-1, keepdims=True), axis=-1)
-    return bool(np.any(at_peak > share * samples.shape[-1]))
+    return bool(np.any(kernels.peak_counts(samples) > share * samples.shape[-1]))
 
 
 def detection_statistic(samples: np.ndarray, band: tuple[float, float], rate: float, padding: int = 4) -> np.ndarray:

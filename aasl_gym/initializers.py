@@ -42,9 +42,9 @@ from typing import Protocol
 
 import numpy as np
 
-from aasl_gym import geometry
+from aasl_gym import geometry, kernels
 from aasl_gym.config import InitializerConfig
-from aasl_gym.measurement_models import receiver_jacobian, receiver_noise
+from aasl_gym.measurement_models import direct_measurement, receiver_jacobian, receiver_noise
 from aasl_gym.motion import Box, coordinated_turn_displacement
 
 logger = logging.getLogger(__name__)
@@ -509,6 +509,36 @@ class LCMAPInitializer:
             velocities = velocities + np.linalg.solve(normal, gradient[..., None])[..., 0]
         return velocities, jac
 
+    def _grid(self, burst: Burst, positions, biases, motion: CandidateMotion, copies: int):
+        """The grid's MAP velocities (C, 3) and scores (C,): :meth:`_solve_velocities` then :meth:`_score` with its
+        Jacobians, compiled for the direct path (:func:`aasl_gym.kernels.lcmap_grid`, the grid's cost: a thousand
+        candidates or more along twenty samples), else in NumPy. ``copies``: see :meth:`_solve_velocities`."""
+        c = self.config
+        if burst.measurement_function is not direct_measurement:
+            velocities, jacobians = self._solve_velocities(burst, positions, biases, motion, copies)
+            return velocities, self._score(burst, positions, velocities, biases, motion, jacobians)[0]
+        if motion.straight:  # one set of s, c, cos and sin for every candidate
+            tau = motion.tau
+            motion_rows = np.stack([tau, np.zeros_like(tau), np.ones_like(tau), np.zeros_like(tau)])[:, None]
+        else:
+            motion_rows = np.stack([motion.s, motion.c, motion.cos, motion.sin])
+        velocities, chi_square, information = kernels.lcmap_grid(
+            positions,
+            biases,
+            motion.tau,
+            motion_rows,
+            (burst.receiver_positions, burst.receiver_velocities),
+            burst.fixed_position,
+            burst.measurements,
+            whitener(burst),
+            burst.residual_period,
+            burst.robust,
+            c.position_sd,
+            c.velocity_prior_sd,
+            self.velocity_iterations,
+        )
+        return velocities, chi_square - c.information_weight * np.linalg.slogdet(information)[1]
+
     def _linearize_at_rest(self, burst: Burst, positions, biases, motion: CandidateMotion, copies: int):
         """The whitened residuals, whitener and Jacobians of :meth:`_solve_velocities`' first step
         (zero velocities) for ``copies`` copies of one set of positions, computed on one copy."""
@@ -618,9 +648,7 @@ class LCMAPInitializer:
             },
         )
         grid_motion = CandidateMotion(grid_burst.times - grid_burst.times[0], turn_rates)
-        copies = len(self.turn_rates)
-        velocities, jacobians = self._solve_velocities(grid_burst, positions, biases, grid_motion, copies)
-        score, _, _ = self._score(grid_burst, positions, velocities, biases, grid_motion, jacobians)
+        velocities, score = self._grid(grid_burst, positions, biases, grid_motion, len(self.turn_rates))
         plausible = self._plausible(positions, velocities, CandidateMotion(tau_end, turn_rates))
         score = np.where(plausible, score, np.inf) if plausible.any() else score
         # Refine the best few of every whole-period sheet and the best overall.

@@ -37,6 +37,13 @@ The tone's complex envelope (:func:`tone_envelope`) runs the synthesis's NumPy e
 operation and is the same to the last bit (LLVM does not contract a multiply and an add into one rounding
 unless told to); the loops above only agree with their NumPy forms to a few units in the last place.
 
+The direct path runs in the same pass (:func:`_direct`: the values and both Jacobians in closed form), for window
+fits from one start on (session 32: a lone start runs unpadded), and in one pass over LC-MAP's grid
+(:func:`lcmap_grid`: a thousand candidates or more along twenty samples, each one's velocity solve and score in
+cache; 26 -> 9 ms an LC-MAP run). The unscented filters' sigma points, moments and update (:func:`sigma_points`,
+:func:`sigma_moments`, :func:`unscented_update`) and a channel's clipping count (:func:`peak_counts`) are compiled
+too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step.
+
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
 12 seconds, most of it the window fit's pass), later processes load it (about 0.15 s, at the first call).
 """
@@ -260,6 +267,8 @@ def _rows(*vectors) -> tuple[tuple[int, ...], np.ndarray]:
     """The common leading shape of 3-vectors (..., 3) and their components as the rows (3 V, N) of one
     contiguous array (V the number of vectors), as :func:`_phasor_loop` reads them."""
     arrays = [np.asarray(v, dtype=float) for v in vectors]
+    if all(a.shape == (3,) for a in arrays):  # one point each (a filter's, the env's): one call, not twelve
+        return (), np.concatenate(arrays)[:, None]
     shape = np.broadcast_shapes(*(a.shape for a in arrays))[:-1]
     rows = np.empty((3 * len(arrays), *shape))
     for i, vector in enumerate(arrays):
@@ -621,47 +630,86 @@ def _frame_mean_slope(width, offsets, period, rows, unwrapped, slips, value, loc
 
 
 @numba.njit(inline="always", error_model="numpy")
+def _direct(sx, sy, sz, vx, vy, vz, mx, my, mz, mvx, mvy, mvz, fx, fy, fz):
+    """The direct path's RD, RRD and their gradients for a source at (sx, sy, sz) moving at (vx, vy, vz), the mobile
+    hydrophone at (mx, my, mz) moving at (mvx, mvy, mvz) and the fixed one at (fx, fy, fz): (RD, RRD, g, q, u_m),
+    each vector as three numbers. g = u_m - u_f is dRD/dp and dRRD/dv, q = dRRD/dp = (I - u_m u_m^T)(v_s - v_m) / d_m
+    - (I - u_f u_f^T) v_s / d_f (:func:`aasl_gym.geometry.direct_jacobian`); the receiver's, dRD/dp_m = -u_m,
+    dRRD/dv_m = -u_m and dRRD/dp_m = -(I - u_m u_m^T)(v_s - v_m) / d_m, follow from u_m and q plus the fixed share
+    (:func:`aasl_gym.measurement_models.direct_receiver_jacobian`), so the last three numbers are that mobile share."""
+    ax, ay, az = sx - mx, sy - my, sz - mz
+    bx, by, bz = sx - fx, sy - fy, sz - fz
+    mobile_range = math.sqrt(ax * ax + ay * ay + az * az)
+    fixed_range = math.sqrt(bx * bx + by * by + bz * bz)
+    ax, ay, az = ax / mobile_range, ay / mobile_range, az / mobile_range
+    bx, by, bz = bx / fixed_range, by / fixed_range, bz / fixed_range
+    rx, ry, rz = vx - mvx, vy - mvy, vz - mvz
+    mobile_rate = rx * ax + ry * ay + rz * az
+    fixed_rate = vx * bx + vy * by + vz * bz
+    px = (rx - ax * mobile_rate) / mobile_range
+    py = (ry - ay * mobile_rate) / mobile_range
+    pz = (rz - az * mobile_rate) / mobile_range
+    qx = px - (vx - bx * fixed_rate) / fixed_range
+    qy = py - (vy - by * fixed_rate) / fixed_range
+    qz = pz - (vz - bz * fixed_rate) / fixed_range
+    rd, rrd = mobile_range - fixed_range, mobile_rate - fixed_rate
+    return rd, rrd, ax - bx, ay - by, az - bz, qx, qy, qz, ax, ay, az, px, py, pz
+
+
+@_compile
+def _direct_loop(rows, fixed, out):
+    """:func:`_direct` for the states in ``rows`` (12, N: the source's and the mobile's positions, then their
+    velocities): [RD, RRD], d/d[p, v] and d/d[p_m, v_m] row by row into ``out`` (26, N), as :func:`_frame_combine`
+    lays out the frame model's."""
+    fx, fy, fz = fixed[0], fixed[1], fixed[2]
+    for i in range(rows.shape[1]):
+        rd, rrd, gx, gy, gz, qx, qy, qz, ax, ay, az, px, py, pz = _direct(
+            rows[0, i], rows[1, i], rows[2, i], rows[6, i], rows[7, i], rows[8, i],
+            rows[3, i], rows[4, i], rows[5, i], rows[9, i], rows[10, i], rows[11, i], fx, fy, fz,
+        )  # fmt: skip
+        out[0, i], out[1, i] = rd, rrd
+        out[2, i], out[3, i], out[4, i], out[5, i], out[6, i], out[7, i] = gx, gy, gz, 0.0, 0.0, 0.0
+        out[8, i], out[9, i], out[10, i], out[11, i], out[12, i], out[13, i] = qx, qy, qz, gx, gy, gz
+        out[14, i], out[15, i], out[16, i], out[17, i], out[18, i], out[19, i] = -ax, -ay, -az, 0.0, 0.0, 0.0
+        out[20, i], out[21, i], out[22, i], out[23, i], out[24, i], out[25, i] = -px, -py, -pz, -ax, -ay, -az
+
+
+def direct_path(position, velocity, mobile, mobile_velocity, fixed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The direct path's [RD, RRD] (..., 2) and its Jacobians d[RD, RRD]/d[p, v] and d[RD, RRD]/d[p_m, v_m]
+    (..., 2, 6 each) in one compiled pass, for states that broadcast together and one fixed hydrophone (3,): the
+    same as :func:`aasl_gym.measurement_models.direct_measurement`, :func:`aasl_gym.geometry.direct_jacobian` and
+    :func:`aasl_gym.measurement_models.direct_receiver_jacobian` to rounding (``tests/test_kernels.py``), at a few
+    microseconds for one point or a filter's sigma points (NumPy's forms: 14 us for the values alone)."""
+    shape, rows = _rows(position, mobile, velocity, mobile_velocity)
+    out = np.empty((26, rows.shape[1]))
+    _direct_loop(rows, _fixed_point(fixed), out)
+    columns = out.T
+    return (
+        columns[:, 0:2].reshape(shape + (2,)),
+        columns[:, 2:14].reshape(shape + (2, 6)),
+        columns[:, 14:26].reshape(shape + (2, 6)),
+    )
+
+
+@numba.njit(inline="always", error_model="numpy")
 def _direct_at_sample(lanes, k, width, receivers, fixed, value, local, receiver):
     """The direct path's [RD, RRD] (``value`` (2, B)) and its Jacobians in [p, v] (``local`` (12, B)) and in [p_m, v_m]
-    (``receiver`` (12, B)) at sample k, laid out as :func:`_frame_mean_slope` lays out the frame model's: the closed
-    forms of :func:`aasl_gym.geometry.direct_jacobian` and :func:`aasl_gym.measurement_models.direct_receiver_jacobian`
-    (u the unit vectors from the hydrophones to the source, d the ranges, v_s - v_m the relative velocity)."""
+    (``receiver`` (12, B)) at sample k (:func:`_direct`), laid out as :func:`_frame_mean_slope` lays out the frame
+    model's."""
     mx, my, mz = receivers[0, k], receivers[1, k], receivers[2, k]
     mvx, mvy, mvz = receivers[3, k], receivers[4, k], receivers[5, k]
     fx, fy, fz = fixed[0], fixed[1], fixed[2]
     for i in range(width):
-        vx, vy, vz = lanes[3, i], lanes[4, i], lanes[5, i]
-        ax, ay, az = lanes[0, i] - mx, lanes[1, i] - my, lanes[2, i] - mz
-        bx, by, bz = lanes[0, i] - fx, lanes[1, i] - fy, lanes[2, i] - fz
-        mobile_range = math.sqrt(ax * ax + ay * ay + az * az)
-        fixed_range = math.sqrt(bx * bx + by * by + bz * bz)
-        ax, ay, az = ax / mobile_range, ay / mobile_range, az / mobile_range
-        bx, by, bz = bx / fixed_range, by / fixed_range, bz / fixed_range
-        rx, ry, rz = vx - mvx, vy - mvy, vz - mvz
-        mobile_rate = rx * ax + ry * ay + rz * az
-        fixed_rate = vx * bx + vy * by + vz * bz
-        value[0, i], value[1, i] = mobile_range - fixed_range, mobile_rate - fixed_rate
-        # The mobile's share of dRRD/dp, (I - u_m u_m^T)(v_s - v_m) / d_m; dRRD/dp_m is its negative.
-        sx, sy, sz = (
-            (rx - ax * mobile_rate) / mobile_range,
-            (ry - ay * mobile_rate) / mobile_range,
-            (rz - az * mobile_rate) / mobile_range,
-        )
-        gx, gy, gz = ax - bx, ay - by, az - bz
+        rd, rrd, gx, gy, gz, qx, qy, qz, ax, ay, az, px, py, pz = _direct(
+            lanes[0, i], lanes[1, i], lanes[2, i], lanes[3, i], lanes[4, i], lanes[5, i],
+            mx, my, mz, mvx, mvy, mvz, fx, fy, fz,
+        )  # fmt: skip
+        value[0, i], value[1, i] = rd, rrd
         local[0, i], local[1, i], local[2, i], local[3, i], local[4, i], local[5, i] = gx, gy, gz, 0.0, 0.0, 0.0
-        local[6, i] = sx - (vx - bx * fixed_rate) / fixed_range
-        local[7, i] = sy - (vy - by * fixed_rate) / fixed_range
-        local[8, i] = sz - (vz - bz * fixed_rate) / fixed_range
-        local[9, i], local[10, i], local[11, i] = gx, gy, gz
-        receiver[0, i], receiver[1, i], receiver[2, i], receiver[3, i], receiver[4, i], receiver[5, i] = (
-            -ax,
-            -ay,
-            -az,
-            0.0,
-            0.0,
-            0.0,
-        )
-        receiver[6, i], receiver[7, i], receiver[8, i] = -sx, -sy, -sz
+        local[6, i], local[7, i], local[8, i], local[9, i], local[10, i], local[11, i] = qx, qy, qz, gx, gy, gz
+        receiver[0, i], receiver[1, i], receiver[2, i] = -ax, -ay, -az
+        receiver[3, i], receiver[4, i], receiver[5, i] = 0.0, 0.0, 0.0
+        receiver[6, i], receiver[7, i], receiver[8, i] = -px, -py, -pz
         receiver[9, i], receiver[10, i], receiver[11, i] = -ax, -ay, -az
 
 
@@ -1018,3 +1066,306 @@ def fit(
         int(iterations), float(max_position_step), costs, information,
     )  # fmt: skip
     return fitted.T[:count].copy(), costs[:count], information[:count]
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _grid_sample(c, k, position, velocity, bias, tau, motion, receivers, fixed, measured, white, period, robust, out):
+    """LC-MAP's grid at sample k for candidate c (its ``position`` and ``velocity`` at the first sample), moving as
+    ``motion`` (4, C or 1, K: s, c, cos, sin of :class:`aasl_gym.initializers.CandidateMotion`) says: the whitened
+    residual times the robust root weights (``out[0, 0:2]``), those weights (``out[0, 2:4]``; ones unless
+    ``robust``) and the whitened Jacobian in [p, v] at the first sample (``out[1:3, 0:6]``, without the weights).
+    Returns the sample's loss (soft-L1's or the square)."""
+    m = 0 if motion.shape[1] == 1 else c
+    s, cc, cos, sin = motion[0, m, k], motion[1, m, k], motion[2, m, k], motion[3, m, k]
+    vx, vy, vz = velocity[0], velocity[1], velocity[2]
+    rd, rrd, gx, gy, gz, qx, qy, qz, _, _, _, _, _, _ = _direct(
+        position[0] + (s * vx - cc * vy), position[1] + (cc * vx + s * vy), position[2] + vz * tau[k],
+        cos * vx - sin * vy, sin * vx + cos * vy, vz,
+        receivers[0, k], receivers[1, k], receivers[2, k], receivers[3, k], receivers[4, k], receivers[5, k],
+        fixed[0], fixed[1], fixed[2],
+    )  # fmt: skip
+    rd_error = measured[k, 0] - rd - bias
+    rrd_error = measured[k, 1] - rrd
+    if period > 0.0:
+        rd_error -= period * math.floor((rd_error + 0.5 * period) / period)
+    e0 = white[0, 0] * rd_error + white[0, 1] * rrd_error
+    e1 = white[1, 0] * rd_error + white[1, 1] * rrd_error
+    if robust:
+        loss = 2 * (math.sqrt(1 + e0 * e0) - 1) + 2 * (math.sqrt(1 + e1 * e1) - 1)
+        root0, root1 = (1 + e0 * e0) ** -0.25, (1 + e1 * e1) ** -0.25
+    else:
+        loss, root0, root1 = e0 * e0 + e1 * e1, 1.0, 1.0
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = root0 * e0, root1 * e1, root0, root1
+    # Each whitened row of [RD, RRD] in [p(t), v(t)] - RD's (g, 0), RRD's (q, g) - chained to [p, v] at the first
+    # sample.
+    for row in range(2):
+        w0, w1 = white[row, 0], white[row, 1]
+        p0, p1, p2 = w0 * gx + w1 * qx, w0 * gy + w1 * qy, w0 * gz + w1 * qz
+        u0, u1, u2 = w1 * gx, w1 * gy, w1 * gz
+        out[1 + row, 0], out[1 + row, 1], out[1 + row, 2] = p0, p1, p2
+        out[1 + row, 3] = p0 * s + p1 * cc + u0 * cos + u1 * sin
+        out[1 + row, 4] = -p0 * cc + p1 * s - u0 * sin + u1 * cos
+        out[1 + row, 5] = p2 * tau[k] + u2
+    return loss
+
+
+@_compile
+def _lcmap_grid(positions, biases, tau, motion, receivers, fixed, measured, white, period, robust, precisions,
+                iterations, velocities, costs, information):  # fmt: skip
+    """See :func:`lcmap_grid`."""
+    count, samples = positions.shape[0], tau.shape[0]
+    position_precision, velocity_precision = precisions[0], precisions[1]
+    terms, last = np.empty((3, 6)), np.empty((samples, 2, 6))
+    normal, right, step = np.empty((3, 3)), np.empty(3), np.empty(3)
+    for c in range(count):
+        velocity = velocities[c]
+        velocity[:] = 0.0
+        for _ in range(iterations):
+            normal[:] = 0.0
+            right[:] = 0.0
+            for k in range(samples):
+                _grid_sample(c, k, positions[c], velocity, biases[c], tau, motion, receivers, fixed, measured,
+                             white, period, robust, terms)  # fmt: skip
+                for row in range(2):
+                    root, error = terms[0, 2 + row], terms[0, row]
+                    for a in range(3):
+                        right[a] += root * terms[1 + row, 3 + a] * error
+                        for b in range(3):
+                            normal[a, b] += (root * terms[1 + row, 3 + a]) * (root * terms[1 + row, 3 + b])
+                last[k] = terms[1:3]
+            for a in range(3):
+                normal[a, a] += velocity_precision
+                right[a] -= velocity[a] * velocity_precision
+            _solve(normal, right, step)
+            for a in range(3):
+                velocity[a] += step[a]
+        # The score: the loss at the solved velocities, and the information of the last linearization (one small
+        # Gauss-Newton step away) weighed with the root weights there.
+        cost = 0.0
+        information[c] = 0.0
+        for k in range(samples):
+            cost += _grid_sample(c, k, positions[c], velocity, biases[c], tau, motion, receivers, fixed, measured,
+                                 white, period, robust, terms)  # fmt: skip
+            for row in range(2):
+                root = terms[0, 2 + row]
+                for a in range(6):
+                    for b in range(6):
+                        information[c, a, b] += (root * last[k, row, a]) * (root * last[k, row, b])
+        costs[c] = cost + velocity_precision * (velocity[0] ** 2 + velocity[1] ** 2 + velocity[2] ** 2)
+        for a in range(6):
+            information[c, a, a] += position_precision if a < 3 else velocity_precision
+
+
+def lcmap_grid(
+    positions: np.ndarray,
+    biases: np.ndarray,
+    tau: np.ndarray,
+    motion: np.ndarray,
+    receivers: tuple[np.ndarray, np.ndarray],
+    fixed: np.ndarray,
+    measured: np.ndarray,
+    white: np.ndarray,
+    period: float | None,
+    robust: bool,
+    position_sd: float,
+    velocity_sd: float,
+    iterations: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """LC-MAP's grid on the direct path, compiled: for each candidate position (C, 3; m) on the locus at a burst's
+    first sample, with its whole-period RD bias (C,; m), the MAP velocity from rest by ``iterations`` Gauss-Newton
+    steps (C, 3; m/s; prior sd ``velocity_sd``), the burst's loss there plus the velocity prior (C,) and the information
+    of the last linearization in [p, v] (C, 6, 6; prior sd ``position_sd``, ``velocity_sd``). ``tau`` (K,; s) are the
+    samples' times since the first, ``motion`` (4, C or 1, K) the candidates' s, c, cos and sin
+    (:class:`aasl_gym.initializers.CandidateMotion`), ``receivers`` the mobile's positions and velocities (K, 3 each),
+    ``fixed`` (3,), ``measured`` (K, 2), ``white`` (2, 2) the burst's uniform whitener, the RD residual taken modulo
+    ``period`` (m) unless None, soft-L1 where ``robust``. The same as
+    :meth:`aasl_gym.initializers.LCMAPInitializer._solve_velocities` and its ``_score`` to rounding
+    (``tests/test_initializers.py``)."""
+    count = len(positions)
+    velocities, costs, information = np.empty((count, 3)), np.empty(count), np.empty((count, 6, 6))
+    _lcmap_grid(
+        np.ascontiguousarray(positions, dtype=float), np.ascontiguousarray(biases, dtype=float),
+        np.ascontiguousarray(tau, dtype=float), np.ascontiguousarray(motion, dtype=float),
+        np.ascontiguousarray(np.concatenate(receivers, axis=1).T, dtype=float), _fixed_point(fixed),
+        np.ascontiguousarray(measured, dtype=float), np.ascontiguousarray(white, dtype=float),
+        0.0 if period is None else float(period), bool(robust),
+        np.array([1 / position_sd**2, 1 / velocity_sd**2]), int(iterations), velocities, costs, information,
+    )  # fmt: skip
+    return velocities, costs, information
+
+
+@_compile
+def _peak_counts(rows, counts):
+    """How many samples (axis 1) of each row and part of ``rows`` (R, N, P) reach that row and part's largest
+    magnitude, into ``counts`` (R, P)."""
+    for r in range(rows.shape[0]):
+        for p in range(rows.shape[2]):
+            peak = 0.0
+            for i in range(rows.shape[1]):
+                peak = max(peak, abs(rows[r, i, p]))
+            count = 0
+            for i in range(rows.shape[1]):
+                count += abs(rows[r, i, p]) >= peak
+            counts[r, p] = count
+
+
+def peak_counts(samples: np.ndarray) -> np.ndarray:
+    """How many samples of each channel (..., N) reach its largest magnitude - of a complex channel, its real and its
+    imaginary part's apart (..., 2) -: a clipped channel's count (:func:`aasl_gym.frontend.saturated`), in one pass
+    without NumPy's temporaries or a copy of the parts."""
+    parts = 2 if np.iscomplexobj(samples) else 1
+    samples = np.ascontiguousarray(samples, dtype=complex if parts == 2 else float)
+    rows = samples.view(np.float64).reshape(-1, samples.shape[-1], parts)
+    counts = np.empty((rows.shape[0], parts), dtype=np.int64)
+    _peak_counts(rows, counts)
+    return counts.reshape(samples.shape[:-1] + (parts,))
+
+
+@_compile
+def _unscented_update(sigmas, values, x, covariance, mean_weights, cov_weights, noise, measured, period, out):
+    """See :func:`unscented_update`; ``out`` (n + 1 + n n + 2 + 4,) takes the state, the NIS, the covariance, the
+    innovation and the innovation covariance, in that order. Returns the innovation covariance's determinant (the
+    update is skipped unless it is positive)."""
+    count, dim = sigmas.shape
+    z0, z1 = 0.0, 0.0
+    for s in range(count):
+        z0 += mean_weights[s] * values[s, 0]
+        z1 += mean_weights[s] * values[s, 1]
+    s00, s01, s11 = noise[0, 0], noise[0, 1], noise[1, 1]
+    cross = np.zeros((dim, 2))
+    for s in range(count):
+        d0, d1, w = values[s, 0] - z0, values[s, 1] - z1, cov_weights[s]
+        s00 += w * d0 * d0
+        s01 += w * d0 * d1
+        s11 += w * d1 * d1
+        for a in range(dim):
+            deviation = w * (sigmas[s, a] - x[a])
+            cross[a, 0] += deviation * d0
+            cross[a, 1] += deviation * d1
+    det = s00 * s11 - s01 * s01
+    y0, y1 = measured[0] - z0, measured[1] - z1
+    if period > 0.0:
+        y0 -= period * math.floor((y0 + 0.5 * period) / period)
+    out[dim + 1 + dim * dim :] = np.array([y0, y1, s00, s01, s01, s11])
+    if not det > 0.0:
+        return det
+    i00, i01, i11 = s11 / det, -s01 / det, s00 / det
+    gain = np.empty((dim, 2))
+    for a in range(dim):
+        gain[a, 0] = cross[a, 0] * i00 + cross[a, 1] * i01
+        gain[a, 1] = cross[a, 0] * i01 + cross[a, 1] * i11
+        out[a] = x[a] + gain[a, 0] * y0 + gain[a, 1] * y1
+    out[dim] = y0 * (i00 * y0 + i01 * y1) + y1 * (i01 * y0 + i11 * y1)
+    # P - K S K^T = P - K C^T (K S = C), symmetrised.
+    first = dim + 1
+    for a in range(dim):
+        for b in range(a, dim):
+            value = 0.5 * (
+                (covariance[a, b] - (gain[a, 0] * cross[b, 0] + gain[a, 1] * cross[b, 1]))
+                + (covariance[b, a] - (gain[b, 0] * cross[a, 0] + gain[b, 1] * cross[a, 1]))
+            )
+            out[first + a * dim + b] = out[first + b * dim + a] = value
+    return det
+
+
+def unscented_update(
+    sigmas: np.ndarray,
+    values: np.ndarray,
+    x: np.ndarray,
+    covariance: np.ndarray,
+    mean_weights: np.ndarray,
+    cov_weights: np.ndarray,
+    noise: np.ndarray,
+    measured: np.ndarray,
+    period: float | None,
+) -> tuple[float, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
+    """An unscented filter's update with one [RD, RRD] measurement, compiled: from its predicted ``sigmas`` (S, n), the
+    measurement model's ``values`` there (S, 2), the predicted mean ``x`` and ``covariance``, the weights, R
+    (``noise``, 2 x 2) and the measurement ``measured`` (2,), the RD innovation taken modulo ``period`` (m) unless None:
+    (det S, x, P, NIS, innovation, S). Where det S is not positive the state, P and NIS are NaN (no update)."""
+    dim = len(x)
+    out = np.full(dim + 1 + dim * dim + 6, np.nan)
+    det = _unscented_update(
+        np.ascontiguousarray(sigmas, dtype=float), np.ascontiguousarray(values, dtype=float), x,
+        np.ascontiguousarray(covariance, dtype=float), mean_weights, cov_weights,
+        np.ascontiguousarray(noise, dtype=float), np.asarray(measured, dtype=float),
+        0.0 if period is None else float(period), out,
+    )  # fmt: skip
+    first = dim + 1 + dim * dim
+    state, nis, updated = out[:dim], float(out[dim]), out[dim + 1 : first].reshape(dim, dim)
+    return float(det), state, updated, nis, out[first : first + 2], out[first + 2 :].reshape(2, 2)
+
+
+@_compile
+def _sigma_points(means, covariances, spread, out, ok):
+    """See :func:`sigma_points`: the Cholesky factor of each spread P by the Cholesky-Banachiewicz recursion."""
+    count, dim = means.shape
+    root = np.zeros((dim, dim))
+    for h in range(count):
+        ok[h] = True
+        for j in range(dim):
+            total = spread * covariances[h, j, j]
+            for k in range(j):
+                total -= root[j, k] * root[j, k]
+            if not total > 0.0:
+                ok[h] = False
+                break
+            root[j, j] = math.sqrt(total)
+            for i in range(j + 1, dim):
+                total = spread * covariances[h, i, j]
+                for k in range(j):
+                    total -= root[i, k] * root[j, k]
+                root[i, j] = total / root[j, j]
+        for a in range(dim):
+            out[h, 0, a] = means[h, a]
+        for i in range(dim):  # sigma point 1 + i is x plus column i of the lower factor, 1 + n + i x minus it
+            for a in range(dim):
+                column = root[a, i] if a >= i and ok[h] else 0.0
+                out[h, 1 + i, a] = means[h, a] + column
+                out[h, 1 + dim + i, a] = means[h, a] - column
+
+
+def sigma_points(means: np.ndarray, covariances: np.ndarray, spread: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merwe's sigma points of H Gaussians at once, compiled: x, x + sqrt((n + lambda) P)_i, x - sqrt((n + lambda) P)_i
+    as rows (H, 2n+1, n) for means (H, n) and covariances (H, n, n) - the columns of the lower Cholesky factor, the
+    rows of filterpy's upper one - and whether each covariance was positive definite (H,; where not, its points are
+    meaningless). The same as :func:`aasl_gym.filters.merwe_sigma_points` to rounding."""
+    count, dim = means.shape
+    out, ok = np.empty((count, 2 * dim + 1, dim)), np.empty(count, dtype=np.bool_)
+    _sigma_points(
+        np.ascontiguousarray(means, dtype=float), np.ascontiguousarray(covariances, dtype=float), float(spread), out, ok
+    )
+    return out, ok
+
+
+@_compile
+def _sigma_moments(points, mean_weights, cov_weights, noise, means, covariances):
+    """See :func:`sigma_moments`."""
+    count, size, dim = points.shape
+    for h in range(count):
+        for a in range(dim):
+            total = 0.0
+            for s in range(size):
+                total += mean_weights[s] * points[h, s, a]
+            means[h, a] = total
+        for a in range(dim):
+            for b in range(a, dim):
+                total = 0.0
+                for s in range(size):
+                    total += cov_weights[s] * (points[h, s, a] - means[h, a]) * (points[h, s, b] - means[h, b])
+                covariances[h, a, b] = total + noise[a, b]
+                covariances[h, b, a] = total + noise[b, a]
+
+
+def sigma_moments(
+    points: np.ndarray, mean_weights: np.ndarray, cov_weights: np.ndarray, noise: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The unscented mean (H, n) and covariance plus ``noise`` (H, n, n) of H sets of propagated sigma points
+    (H, 2n+1, n), compiled: sum_s Wm_s X_s and sum_s Wc_s (X_s - x)(X_s - x)^T + Q."""
+    count, _, dim = points.shape
+    means, covariances = np.empty((count, dim)), np.empty((count, dim, dim))
+    _sigma_moments(
+        np.ascontiguousarray(points, dtype=float), mean_weights, cov_weights,
+        np.ascontiguousarray(noise, dtype=float), means, covariances,
+    )  # fmt: skip
+    return means, covariances

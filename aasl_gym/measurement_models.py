@@ -245,7 +245,7 @@ def receiver_noise(jacobian: np.ndarray, position_sd: float, velocity_sd: float)
     """H_r Sigma_r H_r^T (..., 2, 2): what white navigation errors of sd ``position_sd`` (m, per axis) and
     ``velocity_sd`` (m/s) in the reported receiver state add to the measurement covariance."""
     # Three dot products of the scaled rows: a batched (2, 6) @ (6, 2) product costs four times as much.
-    scaled = jacobian * np.repeat([position_sd, velocity_sd], 3)
+    scaled = jacobian * np.array((position_sd,) * 3 + (velocity_sd,) * 3)
     rd_row, rrd_row = scaled[..., 0, :], scaled[..., 1, :]
     noise = np.empty(jacobian.shape[:-2] + (2, 2))
     noise[..., 0, 0] = np.einsum("...i,...i->...", rd_row, rd_row)

@@ -216,10 +216,10 @@ def test_lcmap_with_a_turn_grid_recovers_a_turning_source(rng):
 
 
 @pytest.mark.parametrize("robust", [False, True])
-def test_a_turn_grid_shares_its_first_linearization_without_changing_the_fit(robust, rng, monkeypatch):
-    """The turn grid's velocity solve linearizes its copies (one per turn rate) at rest once: the
-    hypotheses are those of linearizing every copy on its own, to the last bit (robust bursts, whose
-    whiteners carry per-residual weights, too)."""
+def test_a_turn_grid_shares_its_first_linearization_without_changing_the_fit(robust, rng):
+    """The NumPy grid's velocity solve (a model other than the direct path's) linearizes its copies (one per turn
+    rate) at rest once: its velocities and Jacobians are those of linearizing every copy on its own, to the last bit
+    (robust bursts, whose whiteners carry per-residual weights, too)."""
     times = np.arange(0, 20.0, 0.2)
     angle = times / 15.0
     mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), -7 - 5 * np.sin(2 * np.pi * times / 30)], -1)
@@ -229,12 +229,50 @@ def test_a_turn_grid_shares_its_first_linearization_without_changing_the_fit(rob
     noise = np.diag([0.05**2, 0.02**2])
     burst = Burst(times, z, mobile, mobile_velocity, FIXED, noise, 1.5, direct_measurement, robust=robust)
     initializer = make_initializer("lcmap", InitializerConfig(), REGION, "ctrv")
-    shared = initializer(burst, np.random.default_rng(0))
-    solve = LCMAPInitializer._solve_velocities
-    monkeypatch.setattr(LCMAPInitializer, "_solve_velocities", lambda self, *args: solve(self, *args[:4], copies=1))
-    separate = initializer(burst, np.random.default_rng(0))
-    np.testing.assert_array_equal(shared.states, separate.states)
-    np.testing.assert_array_equal(shared.covariances, separate.covariances)
+    positions, biases, motion = turn_grid(initializer, burst)
+    copies = len(initializer.turn_rates)
+    shared = initializer._solve_velocities(burst, positions, biases, motion, copies)
+    separate = initializer._solve_velocities(burst, positions, biases, motion)
+    for got, expected in zip(shared, separate):
+        np.testing.assert_array_equal(got, expected)
+
+
+def turn_grid(initializer, burst):
+    """The grid's candidates at every turn rate of ``initializer`` and their motion, as LC-MAP builds them."""
+    positions, biases = initializer.candidates(burst)
+    copies = len(initializer.turn_rates)
+    turn_rates = np.repeat(initializer.turn_rates, len(positions))
+    motion = CandidateMotion(burst.times - burst.times[0], turn_rates)
+    return np.tile(positions, (copies, 1)), np.tile(biases, copies), motion
+
+
+@pytest.mark.parametrize("motion_model", ["cv", "ctrv"])
+@pytest.mark.parametrize("robust", [False, True], ids=["plain", "robust"])
+@pytest.mark.parametrize("period", [None, 1.5], ids=["unwrapped", "wrapped"])
+def test_the_compiled_grid_is_the_numpy_grid(motion_model, robust, period, rng):
+    """LC-MAP's grid - the velocity solve from rest and the score with the last linearization's information - compiled
+    (:func:`aasl_gym.kernels.lcmap_grid`) against NumPy (``_solve_velocities`` and ``_score``), to rounding: straight
+    and turning candidates, plain and soft-L1 losses, RD residuals taken modulo the wavelength or not, on a noisy
+    burst of a turning source whose grid holds candidates near and far off it."""
+    times = np.arange(0, 20.0, 1.0)
+    angle = times / 15.0
+    mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), -7 - 5 * np.sin(2 * np.pi * times / 30)], -1)
+    mobile_velocity = np.gradient(mobile, times, axis=0)
+    truth_p, truth_v = turning_truth(np.array([9.0, -6, -10]), np.array([0.7, 0.3, 0.0]), 0.05, times)
+    z = direct_measurement(truth_p, truth_v, mobile, mobile_velocity, FIXED) + rng.normal(0, [0.05, 0.02], (20, 2))
+    noise = np.diag([0.05**2, 0.02**2])
+    burst = Burst(
+        times, z, mobile, mobile_velocity, FIXED, noise, 1.5, direct_measurement, period, (0.05, 0.02), robust=robust
+    )
+    initializer = make_initializer("lcmap", InitializerConfig(), REGION, motion_model)
+    positions, biases, motion = turn_grid(initializer, burst)
+    copies = len(initializer.turn_rates)
+    velocities, score = initializer._grid(burst, positions, biases, motion, copies)
+    expected_velocities, jacobians = initializer._solve_velocities(burst, positions, biases, motion, copies)
+    expected_score = initializer._score(burst, positions, expected_velocities, biases, motion, jacobians)[0]
+    assert len(positions) > 500
+    np.testing.assert_allclose(velocities, expected_velocities, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(score, expected_score, rtol=1e-10, atol=1e-8)
 
 
 def test_lcmap_with_a_ca_filter_fits_the_acceleration(rng):

@@ -8,7 +8,14 @@ import pytest
 
 from aasl_gym import geometry, kernels, synthesis
 from aasl_gym.initializers import inverse_cholesky, whiten
-from aasl_gym.measurement_models import FrameAveragedPhasor, Propagation, frame_offsets, receiver_noise
+from aasl_gym.measurement_models import (
+    FrameAveragedPhasor,
+    Propagation,
+    direct_measurement,
+    direct_receiver_jacobian,
+    frame_offsets,
+    receiver_noise,
+)
 
 PROPAGATION = Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5)
 FIXED = np.array([0.0, 0.0, -0.96])
@@ -157,6 +164,9 @@ def test_every_loop_is_compiled():
         "_fit_terms",
         "_fit",
         "_damped_steps",
+        "_direct_loop",
+        "_lcmap_grid",
+        "_peak_counts",
     )
     for name in loops + compiled:
         assert isinstance(getattr(kernels, name), numba.core.dispatcher.Dispatcher), name
@@ -190,3 +200,34 @@ def test_damped_steps_solve_what_numpy_solves():
     scale = np.diagonal(normal, axis1=1, axis2=2)
     expected = -np.linalg.solve(normal + damping[:, None, None] * scale[:, None, :] * np.eye(8), gradient[..., None])
     np.testing.assert_allclose(kernels.damped_steps(normal, damping, gradient), expected[..., 0], rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("shape", [(), (4, 17)], ids=["point", "sigma-points"])
+def test_the_compiled_direct_path_is_the_numpy_one(shape):
+    """The direct path's values and both Jacobians from one compiled pass against the NumPy forms, to rounding, for one
+    point (the env's, the reward's information) and a bank's sigma points against one receiver."""
+    rng = np.random.default_rng(3)
+    position, velocity = rng.normal(0, 10, shape + (3,)), rng.normal(0, 0.5, shape + (3,))
+    mobile, mobile_velocity, fixed = rng.normal(0, 10, 3), rng.normal(0, 0.5, 3), np.array([0.0, 0.0, -0.96])
+    values, state, receiver = kernels.direct_path(position, velocity, mobile, mobile_velocity, fixed)
+    assert values.shape == shape + (2,) and state.shape == receiver.shape == shape + (2, 6)
+    expected_values = direct_measurement(position, velocity, mobile, mobile_velocity, fixed)
+    np.testing.assert_allclose(values, expected_values, rtol=1e-13)
+    expected_state = geometry.direct_jacobian(position, velocity, mobile, mobile_velocity, fixed)
+    np.testing.assert_allclose(state, expected_state, rtol=1e-12, atol=1e-15)
+    expected_receiver = direct_receiver_jacobian(position, velocity, mobile, mobile_velocity)
+    np.testing.assert_allclose(receiver, expected_receiver, rtol=1e-12, atol=1e-15)
+
+
+def test_peak_counts_count_each_part_at_its_own_peak():
+    """The samples at each channel's largest magnitude, a complex channel's real and imaginary parts apart, against
+    NumPy's count; integer and real input alike."""
+    rng = np.random.default_rng(4)
+    samples = rng.normal(size=(2, 3, 50)) + 1j * rng.normal(size=(2, 3, 50))
+    samples.real[0, 1, [3, 7, 9]] = -samples.real[0, 1].__abs__().max() * 2  # three samples share the real peak
+    parts = np.stack([samples.real, samples.imag], axis=-1)
+    expected = np.count_nonzero(np.abs(parts) >= np.abs(parts).max(axis=-2, keepdims=True), axis=-2)
+    counts = kernels.peak_counts(samples)
+    np.testing.assert_array_equal(counts, expected)
+    assert counts[0, 1, 0] == 3
+    np.testing.assert_array_equal(kernels.peak_counts(np.array([[1, -3, 3, 2]])), [[2]])
