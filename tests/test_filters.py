@@ -310,3 +310,40 @@ def test_a_stacked_update_conditioned_on_the_first_pair_is_the_joint_kalman_upda
     ukf.update_stacked(innovation, deviations, noise)
     np.testing.assert_allclose(ukf.x, x_joint, atol=1e-10)
     np.testing.assert_allclose(ukf.P, p_joint, atol=1e-10)
+
+
+def test_the_compiled_sigma_points_are_merwes_and_flag_a_broken_covariance():
+    """:func:`aasl_gym.kernels.sigma_points` against NumPy's Cholesky (``merwe_sigma_points``), to rounding, for a
+    batch whose second covariance is not positive definite: flagged, the others' points unchanged by it."""
+    from aasl_gym import kernels
+
+    rng = np.random.default_rng(6)
+    roots = rng.normal(0, 0.3, (3, 8, 8))
+    covariances = roots @ np.swapaxes(roots, 1, 2) + 0.01 * np.eye(8)
+    covariances[1, 4, 4] = -1.0
+    means = rng.normal(0, 5, (3, 8))
+    points, valid = kernels.sigma_points(means, covariances, 2.0)
+    assert valid.tolist() == [True, False, True]
+    for i in (0, 2):
+        np.testing.assert_allclose(points[i], merwe_sigma_points(means[i], covariances[i], 2.0), rtol=0, atol=1e-12)
+
+
+def test_an_update_takes_the_rd_innovation_modulo_its_period():
+    """With a period the RD innovation is wrapped into [-period/2, period/2): a measurement whole periods away updates
+    the filter as the one within half a period does, and the NIS is the wrapped innovation's."""
+    model = MOTION_MODELS["cv"](FilterConfig())
+    filters = [UnscentedKalmanFilter(model) for _ in range(2)]
+    for ukf in filters:
+        ukf.initialize(np.r_[8.0, -5, -10, 0.3, 0.2, 0, 0, 0], np.eye(8) * 0.2)
+        ukf.predict(0.2)
+    mobile, mobile_velocity = np.array([10.0, 0, -7]), np.array([0.0, 1, 0])
+
+    def hx(sigmas):
+        return direct_measurement(sigmas[:, :3], sigmas[:, 3:6], mobile, mobile_velocity, FIXED) + sigmas[:, -2:]
+
+    z = hx(filters[0].sigmas_f[:1])[0] + np.array([0.2, 0.01])
+    filters[0].update(z, np.diag([0.05**2, 0.02**2]), hx, period=1.5)
+    filters[1].update(z + np.array([3 * 1.5, 0.0]), np.diag([0.05**2, 0.02**2]), hx, period=1.5)
+    np.testing.assert_allclose(filters[1].x, filters[0].x, rtol=0, atol=1e-12)
+    assert filters[1].nis == pytest.approx(filters[0].nis, rel=1e-9)
+    assert abs(filters[1].y[0]) < 0.75

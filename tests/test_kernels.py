@@ -167,6 +167,9 @@ def test_every_loop_is_compiled():
         "_direct_loop",
         "_lcmap_grid",
         "_peak_counts",
+        "_sigma_points",
+        "_sigma_moments",
+        "_unscented_update",
     )
     for name in loops + compiled:
         assert isinstance(getattr(kernels, name), numba.core.dispatcher.Dispatcher), name
