@@ -45,7 +45,7 @@ cache; 26 -> 9 ms an LC-MAP run). The unscented filters' sigma points, moments a
 too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step.
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
-12 seconds, most of it the window fit's pass), later processes load it (about 0.15 s, at the first call).
+21 seconds, most of it the window fit's pass), later processes load it (about 0.15 s, at the first call).
 """
 
 from __future__ import annotations

@@ -220,14 +220,7 @@ def test_a_turn_grid_shares_its_first_linearization_without_changing_the_fit(rob
     """The NumPy grid's velocity solve (a model other than the direct path's) linearizes its copies (one per turn
     rate) at rest once: its velocities and Jacobians are those of linearizing every copy on its own, to the last bit
     (robust bursts, whose whiteners carry per-residual weights, too)."""
-    times = np.arange(0, 20.0, 0.2)
-    angle = times / 15.0
-    mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), -7 - 5 * np.sin(2 * np.pi * times / 30)], -1)
-    mobile_velocity = np.gradient(mobile, times, axis=0)
-    truth_p, truth_v = turning_truth(np.array([9.0, -6, -10]), np.array([0.7, 0.3, 0.0]), 0.05, times)
-    z = direct_measurement(truth_p, truth_v, mobile, mobile_velocity, FIXED) + rng.normal(0, [0.05, 0.02], (100, 2))
-    noise = np.diag([0.05**2, 0.02**2])
-    burst = Burst(times, z, mobile, mobile_velocity, FIXED, noise, 1.5, direct_measurement, robust=robust)
+    burst = turning_burst(np.arange(0, 20.0, 0.2), rng, robust=robust)
     initializer = make_initializer("lcmap", InitializerConfig(), REGION, "ctrv")
     positions, biases, motion = turn_grid(initializer, burst)
     copies = len(initializer.turn_rates)
@@ -235,6 +228,19 @@ def test_a_turn_grid_shares_its_first_linearization_without_changing_the_fit(rob
     separate = initializer._solve_velocities(burst, positions, biases, motion)
     for got, expected in zip(shared, separate):
         np.testing.assert_array_equal(got, expected)
+
+
+def turning_burst(times: np.ndarray, rng, **fields) -> Burst:
+    """A noisy direct-path burst at ``times`` (s) of a source turning at 0.05 rad/s, heard from a helix-like path;
+    ``fields`` go to the :class:`Burst` (its residual period, navigation sd, robust loss)."""
+    angle = times / 15.0
+    mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), -7 - 5 * np.sin(2 * np.pi * times / 30)], -1)
+    mobile_velocity = np.gradient(mobile, times, axis=0)
+    truth_p, truth_v = turning_truth(np.array([9.0, -6, -10]), np.array([0.7, 0.3, 0.0]), 0.05, times)
+    z = direct_measurement(truth_p, truth_v, mobile, mobile_velocity, FIXED)
+    z += rng.normal(0, [0.05, 0.02], z.shape)
+    noise = np.diag([0.05**2, 0.02**2])
+    return Burst(times, z, mobile, mobile_velocity, FIXED, noise, 1.5, direct_measurement, **fields)
 
 
 def turn_grid(initializer, burst):
@@ -254,15 +260,8 @@ def test_the_compiled_grid_is_the_numpy_grid(motion_model, robust, period, rng):
     (:func:`aasl_gym.kernels.lcmap_grid`) against NumPy (``_solve_velocities`` and ``_score``), to rounding: straight
     and turning candidates, plain and soft-L1 losses, RD residuals taken modulo the wavelength or not, on a noisy
     burst of a turning source whose grid holds candidates near and far off it."""
-    times = np.arange(0, 20.0, 1.0)
-    angle = times / 15.0
-    mobile = np.stack([15 * np.cos(angle), 15 * np.sin(angle), -7 - 5 * np.sin(2 * np.pi * times / 30)], -1)
-    mobile_velocity = np.gradient(mobile, times, axis=0)
-    truth_p, truth_v = turning_truth(np.array([9.0, -6, -10]), np.array([0.7, 0.3, 0.0]), 0.05, times)
-    z = direct_measurement(truth_p, truth_v, mobile, mobile_velocity, FIXED) + rng.normal(0, [0.05, 0.02], (20, 2))
-    noise = np.diag([0.05**2, 0.02**2])
-    burst = Burst(
-        times, z, mobile, mobile_velocity, FIXED, noise, 1.5, direct_measurement, period, (0.05, 0.02), robust=robust
+    burst = turning_burst(
+        np.arange(0, 20.0, 1.0), rng, residual_period=period, navigation_sd=(0.05, 0.02), robust=robust
     )
     initializer = make_initializer("lcmap", InitializerConfig(), REGION, motion_model)
     positions, biases, motion = turn_grid(initializer, burst)
