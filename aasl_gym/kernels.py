@@ -539,8 +539,10 @@ def _lane_states(states, motion, points, k, start, width, fold, lanes):
     """The source's position and velocity at sample k (``lanes`` rows 0:6) and the fold's sign there (row 6) for the
     block's ``width`` starts from ``start``: from ``points`` (6, K, C) where the trajectories are given (the signs
     already in ``motion``), else the free motion ``motion[k]`` (6, m) times the block's ``states`` (n, B), folded
-    into ``fold`` (z_min, slab span; a span of 0 for none) as :meth:`aasl_gym.filters.MotionModel.trajectory` folds."""
-    if motion.shape[3] > 1:
+    into ``fold`` (z_min, slab span; a span of 0 for none) as :meth:`aasl_gym.filters.MotionModel.trajectory` folds.
+    ``points`` without rows (0, 0, 0) says that no trajectories were given (a single start's given trajectory has
+    one column, as one shared free motion does, so the motion's shape cannot say)."""
+    if points.shape[0] > 0:
         for q in range(6):
             for i in range(width):
                 lanes[q, i] = points[q, k, start + i]
@@ -753,7 +755,7 @@ def _block_terms(states, start, width, motion, points, fold, data, scratch, loss
     lanes, rows_at_offsets, unwrapped, slips, value, local, receiver, white, error, rows = scratch
     moving = motion.shape[2]
     dim = moving + 2
-    shared = motion.shape[3] == 1
+    shared = points.shape[0] == 0  # one free motion for every start, not each start's own trajectory
     information[:] = 0.0
     gradient[:] = 0.0
     loss[:] = 0.0
@@ -903,7 +905,7 @@ def fit_terms(
     take = _padded(count)
     padded = len(take)
     if trajectory is None:
-        motion, points = np.ascontiguousarray(motion[..., None]), np.empty((6, 1, 1))
+        motion, points = np.ascontiguousarray(motion[..., None]), np.empty((0, 0, 0))
     else:
         motion = np.ascontiguousarray(motion[take].transpose(1, 2, 3, 0))
         points = np.ascontiguousarray(trajectory[take, :, 0:6].transpose(2, 1, 0))  # (6, K, C): the starts innermost
@@ -983,7 +985,7 @@ def _fit(states, prior_mean, prior_sd, motion, fold, data, iterations, max_posit
     dim, count = states.shape
     block = FIT_BLOCK
     scratch = _scratch(data[2].shape[0], dim, block)
-    no_points = np.empty((6, 1, 1))
+    no_points = np.empty((0, 0, 0))  # the pass runs the trajectories itself (see _lane_states)
     loss, normal, pull = np.empty(block), np.empty((dim, dim, block)), np.empty((dim, block))
     trial_loss, trial_normal, trial_pull = np.empty(block), np.empty((dim, dim, block)), np.empty((dim, block))
     prior, trial_prior, cost, damping = np.empty((dim, block)), np.empty((dim, block)), np.empty(block), np.empty(block)
