@@ -634,11 +634,11 @@ def _frame_mean_slope(width, offsets, period, rows, unwrapped, slips, value, loc
 @numba.njit(inline="always", error_model="numpy")
 def _direct(sx, sy, sz, vx, vy, vz, mx, my, mz, mvx, mvy, mvz, fx, fy, fz):
     """The direct path's RD, RRD and their gradients for a source at (sx, sy, sz) moving at (vx, vy, vz), the mobile
-    hydrophone at (mx, my, mz) moving at (mvx, mvy, mvz) and the fixed one at (fx, fy, fz): (RD, RRD, g, q, u_m),
-    each vector as three numbers. g = u_m - u_f is dRD/dp and dRRD/dv, q = dRRD/dp = (I - u_m u_m^T)(v_s - v_m) / d_m
-    - (I - u_f u_f^T) v_s / d_f (:func:`aasl_gym.geometry.direct_jacobian`); the receiver's, dRD/dp_m = -u_m,
-    dRRD/dv_m = -u_m and dRRD/dp_m = -(I - u_m u_m^T)(v_s - v_m) / d_m, follow from u_m and q plus the fixed share
-    (:func:`aasl_gym.measurement_models.direct_receiver_jacobian`), so the last three numbers are that mobile share."""
+    hydrophone at (mx, my, mz) moving at (mvx, mvy, mvz) and the fixed one at (fx, fy, fz): (RD, RRD, g, q, u_m, w),
+    each vector as three numbers. g = u_m - u_f is dRD/dp and dRRD/dv, and q = dRRD/dp = w - (I - u_f u_f^T) v_s / d_f
+    with the mobile's share w = (I - u_m u_m^T)(v_s - v_m) / d_m (:func:`aasl_gym.geometry.direct_jacobian`); the
+    receiver's Jacobian is dRD/dp_m = dRRD/dv_m = -u_m, dRRD/dp_m = -w
+    (:func:`aasl_gym.measurement_models.direct_receiver_jacobian`)."""
     ax, ay, az = sx - mx, sy - my, sz - mz
     bx, by, bz = sx - fx, sy - fy, sz - fz
     mobile_range = math.sqrt(ax * ax + ay * ay + az * az)
@@ -886,11 +886,13 @@ def fit_terms(
     period: float | None,
     robust: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A window fit's Gauss-Newton terms under the frame-averaged phasor model, in one compiled pass per start:
+    """A window fit's Gauss-Newton terms under the frame-averaged phasor model or the direct path, in one compiled pass
+    per start:
     the loss sum_k rho(|W_k r_k|^2) (C,), the normal matrix J^T V J (C, n, n) and J^T V W r (C, n), with r_k = z_k -
     h(x(t_k)) - b, W_k R_eff's whitener along the start's own trajectory, J the whitened prediction's Jacobian
-    and V the IRLS weights of soft-L1 (``robust``) or ones. The same as :func:`frame_phasor`, :func:`window_terms`
-    and :func:`whitened_chain` followed by NumPy's sums, to rounding (``tests/test_window.py``).
+    and V the IRLS weights of soft-L1 (``robust``) or ones. The same as :func:`frame_phasor` (or the direct path's
+    NumPy forms), :func:`window_terms` and :func:`whitened_chain` followed by NumPy's sums, to rounding
+    (``tests/test_window.py``).
 
     ``states`` (C, n) in the filter's layout at the window's last sample, [b_p, b_v] last. Either ``motion`` is one
     free motion for every state, d[p, v](t_k)/d x (K, 6, n - 2)
@@ -898,7 +900,8 @@ def fit_terms(
     ``trajectory`` None, and the pass runs each state along it, folded into ``fold`` (z_min, z_max; m) unless None;
     or ``motion`` is each state's own (C, K, 6, n - 2) and ``trajectory`` (C, K, 6+) its source positions and
     velocities (m, m/s). ``receivers`` the mobile's positions and velocities (K, 3 each), ``fixed`` (3,), the
-    frame's ``offsets`` (s), ``propagation`` a :class:`aasl_gym.measurement_models.Propagation`, ``measured``
+    frame's ``offsets`` (s), ``propagation`` a :class:`aasl_gym.measurement_models.Propagation` (both None for the
+    direct path), ``measured``
     (K, 2), ``noise`` R_ac (2, 2), ``navigation_sd`` (m, m/s), the RD residual taken modulo ``period`` (m) unless
     None."""
     count, dim = states.shape
@@ -1052,7 +1055,8 @@ def fit(
     iterations: int,
     max_position_step: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Levenberg-Marquardt window fits under the frame-averaged phasor model, compiled whole, for a motion model
+    """Levenberg-Marquardt window fits under the frame-averaged phasor model or the direct path, compiled whole, for a
+    motion model
     whose free motion is one matrix ``motion`` (K, 6, n - 2) for every state (folded into ``fold`` unless None):
     from ``states`` (C, n), with the prior ``prior_mean`` (C, n) and ``prior_sd`` (n,), the fitted states (C, n),
     their costs (C,) and information (C, n, n). ``burst_data`` are :func:`fit_terms`' arguments from ``receivers``
