@@ -447,7 +447,8 @@ class SourceTracker:
         return z, noise, jacobian
 
     def residual(self, measured: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-        """z - h, with the RD part modulo the wavelength under the phasor model (see ``correction_period``)."""
+        """z - h, with the RD part modulo the wavelength under the phasor model (see ``correction_period``); the
+        filters' update takes it in its compiled form (:func:`aasl_gym.kernels.unscented_update`)."""
         difference = measured - predicted
         if self.correction_period is not None:
             difference[..., 0] = geometry.wrap_to_period(difference[..., 0], self.correction_period)

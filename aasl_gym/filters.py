@@ -32,9 +32,7 @@ from aasl_gym.motion import coordinated_turn_displacement
 
 BASE_DIM = 8  # [p, v, b_p, b_v]: the layout initializers produce
 LIMIT_GRAZE = 0.05  # a speed-limited CA's Jacobian: the least cosine between a and the velocity at the limit
-
-
-LOG_TWO_PI_SQUARED = 2 * math.log(2 * math.pi)  # the normalizer of a 2-D Gaussian's log density
+LOG_NORMALIZER_2D = 2 * math.log(2 * math.pi)  # log (2 pi)^2: a 2-D Gaussian's log density carries half of it
 
 
 def _white_noise_blocks(dt: float, order: int) -> np.ndarray:
@@ -483,7 +481,8 @@ def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> lis
     """Predict ``filters`` (one motion model and one set of weights) ``dt`` seconds on as a batch, the sigma points and
     the moments compiled (:func:`aasl_gym.kernels.sigma_points`, :func:`aasl_gym.kernels.sigma_moments`), each as its
     own :meth:`UnscentedKalmanFilter.predict` would; the indices of those that predicted. A filter whose covariance
-    is not positive definite, before or after the prediction, is left out as it was."""
+    is not positive definite, before or after the prediction, is left out and left as it was (its mean and covariance
+    not half predicted)."""
     if not filters:
         return []
     first = filters[0]
@@ -561,13 +560,13 @@ class UnscentedKalmanFilter:
         if self.sigmas_f is None:
             raise RuntimeError("predict() must run before update()")
         sigmas_h = hx(self.sigmas_f)
-        det, x, covariance, nis, self.y, self.S = kernels.unscented_update(
+        det, x, covariance, nis, innovation, innovation_covariance = kernels.unscented_update(
             self.sigmas_f, sigmas_h, self.x, self.P, self.Wm, self.Wc, R, z, period
         )
         if not det > 0:
             raise np.linalg.LinAlgError("innovation covariance is not positive definite")
-        self.x, self.P, self.nis = x, covariance, nis
-        self.log_likelihood = -0.5 * (nis + math.log(det) + LOG_TWO_PI_SQUARED)
+        self.x, self.P, self.nis, self.y, self.S = x, covariance, nis, innovation, innovation_covariance
+        self.log_likelihood = -0.5 * (nis + math.log(det) + LOG_NORMALIZER_2D)
 
     def update_stacked(self, innovation: np.ndarray, deviations: np.ndarray, R: np.ndarray) -> float:
         """Update with a measurement of any size m, given its innovation (m,), the predicted measurement at

@@ -510,10 +510,12 @@ class LCMAPInitializer:
         return velocities, jac
 
     def _grid(self, burst: Burst, positions, biases, motion: CandidateMotion, copies: int):
-        """The grid's MAP velocities (C, 3) and scores (C,): :meth:`_solve_velocities` then :meth:`_score` with its
-        Jacobians, compiled for the direct path (:func:`aasl_gym.kernels.lcmap_grid`, the grid's cost: a thousand
-        candidates or more along twenty samples), else in NumPy. ``copies``: see :meth:`_solve_velocities`."""
+        """The grid's MAP velocities (C, 3; m/s) and scores (C,; J - lambda log det F): :meth:`_solve_velocities` then
+        :meth:`_score` with its Jacobians, compiled for the direct path (:func:`aasl_gym.kernels.lcmap_grid`, the
+        grid's cost: a thousand candidates or more along twenty samples), else in NumPy. ``copies``: see
+        :meth:`_solve_velocities`."""
         c = self.config
+        assert motion.accelerations is None  # the grid's candidates move straight or turn; CA fits its own later
         if burst.measurement_function is not direct_measurement:
             velocities, jacobians = self._solve_velocities(burst, positions, biases, motion, copies)
             return velocities, self._score(burst, positions, velocities, biases, motion, jacobians)[0]

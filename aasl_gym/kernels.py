@@ -677,8 +677,9 @@ def _direct_loop(rows, fixed, out):
 
 
 def direct_path(position, velocity, mobile, mobile_velocity, fixed) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The direct path's [RD, RRD] (..., 2) and its Jacobians d[RD, RRD]/d[p, v] and d[RD, RRD]/d[p_m, v_m]
-    (..., 2, 6 each) in one compiled pass, for states that broadcast together and one fixed hydrophone (3,): the
+    """The direct path's [RD, RRD] (..., 2; m, m/s) and its Jacobians d[RD, RRD]/d[p, v] and d[RD, RRD]/d[p_m, v_m]
+    (..., 2, 6 each) in one compiled pass, for source and mobile positions (m) and velocities (m/s) that broadcast
+    together and one fixed hydrophone (3,; a ValueError names any other shape): the
     same as :func:`aasl_gym.measurement_models.direct_measurement`, :func:`aasl_gym.geometry.direct_jacobian` and
     :func:`aasl_gym.measurement_models.direct_receiver_jacobian` to rounding (``tests/test_kernels.py``), at a few
     microseconds for one point or a filter's sigma points (NumPy's forms: 14 us for the values alone)."""
@@ -855,7 +856,8 @@ def _constants(receivers, fixed, offsets, propagation, measured, noise, navigati
     direct path (no frame: ``offsets`` are not read)."""
     direct = propagation is None
     p = propagation
-    channel = np.zeros(4) if direct else np.array([p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber])
+    channel = np.zeros(4) if direct else np.array([p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber],
+                                                  dtype=float)  # fmt: skip
     return (
         np.ascontiguousarray(np.concatenate(receivers, axis=1).T, dtype=float),  # (6, K)
         _fixed_point(fixed),
@@ -887,23 +889,20 @@ def fit_terms(
     robust: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A window fit's Gauss-Newton terms under the frame-averaged phasor model or the direct path, in one compiled pass
-    per start:
-    the loss sum_k rho(|W_k r_k|^2) (C,), the normal matrix J^T V J (C, n, n) and J^T V W r (C, n), with r_k = z_k -
-    h(x(t_k)) - b, W_k R_eff's whitener along the start's own trajectory, J the whitened prediction's Jacobian
-    and V the IRLS weights of soft-L1 (``robust``) or ones. The same as :func:`frame_phasor` (or the direct path's
-    NumPy forms), :func:`window_terms` and :func:`whitened_chain` followed by NumPy's sums, to rounding
+    per start: the loss sum_k rho(|W_k r_k|^2) (C,), the normal matrix J^T V J (C, n, n) and J^T V W r (C, n), with
+    r_k = z_k - h(x(t_k)) - b, W_k R_eff's whitener along the start's own trajectory, J the whitened prediction's
+    Jacobian and V the IRLS weights of soft-L1 (``robust``) or ones. The same as :func:`frame_phasor` (or the direct
+    path's NumPy forms), :func:`window_terms` and :func:`whitened_chain` followed by NumPy's sums, to rounding
     (``tests/test_window.py``).
 
     ``states`` (C, n) in the filter's layout at the window's last sample, [b_p, b_v] last. Either ``motion`` is one
     free motion for every state, d[p, v](t_k)/d x (K, 6, n - 2)
-    (:meth:`aasl_gym.filters.MotionModel.free_motion_matrix`),
-    ``trajectory`` None, and the pass runs each state along it, folded into ``fold`` (z_min, z_max; m) unless None;
-    or ``motion`` is each state's own (C, K, 6, n - 2) and ``trajectory`` (C, K, 6+) its source positions and
-    velocities (m, m/s). ``receivers`` the mobile's positions and velocities (K, 3 each), ``fixed`` (3,), the
-    frame's ``offsets`` (s), ``propagation`` a :class:`aasl_gym.measurement_models.Propagation` (both None for the
-    direct path), ``measured``
-    (K, 2), ``noise`` R_ac (2, 2), ``navigation_sd`` (m, m/s), the RD residual taken modulo ``period`` (m) unless
-    None."""
+    (:meth:`aasl_gym.filters.MotionModel.free_motion_matrix`), ``trajectory`` None, and the pass runs each state
+    along it, folded into ``fold`` (z_min, z_max; m) unless None; or ``motion`` is each state's own (C, K, 6, n - 2)
+    and ``trajectory`` (C, K, 6+) its source positions and velocities (m, m/s). ``receivers`` the mobile's positions
+    and velocities (K, 3 each), ``fixed`` (3,), the frame's ``offsets`` (s) and ``propagation`` (a
+    :class:`aasl_gym.measurement_models.Propagation`; both None for the direct path), ``measured`` (K, 2), ``noise``
+    R_ac (2, 2), ``navigation_sd`` (m, m/s), the RD residual taken modulo ``period`` (m) unless None."""
     count, dim = states.shape
     take = _padded(count)
     padded = len(take)
@@ -1056,11 +1055,10 @@ def fit(
     max_position_step: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Levenberg-Marquardt window fits under the frame-averaged phasor model or the direct path, compiled whole, for a
-    motion model
-    whose free motion is one matrix ``motion`` (K, 6, n - 2) for every state (folded into ``fold`` unless None):
-    from ``states`` (C, n), with the prior ``prior_mean`` (C, n) and ``prior_sd`` (n,), the fitted states (C, n),
-    their costs (C,) and information (C, n, n). ``burst_data`` are :func:`fit_terms`' arguments from ``receivers``
-    to ``robust``. See :func:`aasl_gym.window.fit_window`, whose loop over :func:`fit_terms` this is."""
+    motion model whose free motion is one matrix ``motion`` (K, 6, n - 2) for every state (folded into ``fold``
+    unless None): from ``states`` (C, n), with the prior ``prior_mean`` (C, n) and ``prior_sd`` (n,), the fitted
+    states (C, n), their costs (C,) and information (C, n, n). ``burst_data`` are :func:`fit_terms`' arguments from
+    ``receivers`` to ``robust``. See :func:`aasl_gym.window.fit_window`, whose loop over :func:`fit_terms` this is."""
     count, dim = states.shape
     take = _padded(count)
     padded = len(take)
@@ -1115,48 +1113,67 @@ def _grid_sample(c, k, position, velocity, bias, tau, motion, receivers, fixed, 
     return loss
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _grid_velocity(c, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust, precision,
+                   iterations, velocity, terms, last_jacobians, normal, right, step):  # fmt: skip
+    """Candidate c's MAP velocity from rest (``velocity``, in place) by ``iterations`` Gauss-Newton steps with the
+    velocity prior's ``precision``; the last linearization's whitened Jacobians stay in ``last_jacobians``."""
+    velocity[:] = 0.0
+    for _ in range(iterations):
+        normal[:] = 0.0
+        right[:] = 0.0
+        for k in range(tau.shape[0]):
+            _grid_sample(c, k, positions[c], velocity, biases[c], tau, motion, receivers, fixed, measured,
+                         white, period, robust, terms)  # fmt: skip
+            for row in range(2):
+                root, error = terms[0, 2 + row], terms[0, row]
+                for a in range(3):
+                    right[a] += root * terms[1 + row, 3 + a] * error
+                    for b in range(3):
+                        normal[a, b] += (root * terms[1 + row, 3 + a]) * (root * terms[1 + row, 3 + b])
+            last_jacobians[k] = terms[1:3]
+        for a in range(3):
+            normal[a, a] += precision
+            right[a] -= velocity[a] * precision
+        _solve(normal, right, step)
+        for a in range(3):
+            velocity[a] += step[a]
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _grid_score(c, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust, velocity,
+                terms, last_jacobians, information):  # fmt: skip
+    """Candidate c's loss at its solved ``velocity`` (returned) and the information of the last linearization (one
+    small Gauss-Newton step away) weighed with the root weights at the solved velocity, as the NumPy score does,
+    into ``information`` (6, 6), without its prior."""
+    cost = 0.0
+    information[:] = 0.0
+    for k in range(tau.shape[0]):
+        cost += _grid_sample(c, k, positions[c], velocity, biases[c], tau, motion, receivers, fixed, measured,
+                             white, period, robust, terms)  # fmt: skip
+        for row in range(2):
+            root = terms[0, 2 + row]
+            for a in range(6):
+                for b in range(6):
+                    information[a, b] += (root * last_jacobians[k, row, a]) * (root * last_jacobians[k, row, b])
+    return cost
+
+
 @_compile
 def _lcmap_grid(positions, biases, tau, motion, receivers, fixed, measured, white, period, robust, precisions,
                 iterations, velocities, costs, information):  # fmt: skip
     """See :func:`lcmap_grid`."""
-    count, samples = positions.shape[0], tau.shape[0]
     position_precision, velocity_precision = precisions[0], precisions[1]
-    terms, last = np.empty((3, 6)), np.empty((samples, 2, 6))
+    terms, last_jacobians = np.empty((3, 6)), np.empty((tau.shape[0], 2, 6))
     normal, right, step = np.empty((3, 3)), np.empty(3), np.empty(3)
-    for c in range(count):
+    for c in range(positions.shape[0]):
         velocity = velocities[c]
-        velocity[:] = 0.0
-        for _ in range(iterations):
-            normal[:] = 0.0
-            right[:] = 0.0
-            for k in range(samples):
-                _grid_sample(c, k, positions[c], velocity, biases[c], tau, motion, receivers, fixed, measured,
-                             white, period, robust, terms)  # fmt: skip
-                for row in range(2):
-                    root, error = terms[0, 2 + row], terms[0, row]
-                    for a in range(3):
-                        right[a] += root * terms[1 + row, 3 + a] * error
-                        for b in range(3):
-                            normal[a, b] += (root * terms[1 + row, 3 + a]) * (root * terms[1 + row, 3 + b])
-                last[k] = terms[1:3]
-            for a in range(3):
-                normal[a, a] += velocity_precision
-                right[a] -= velocity[a] * velocity_precision
-            _solve(normal, right, step)
-            for a in range(3):
-                velocity[a] += step[a]
-        # The score: the loss at the solved velocities, and the information of the last linearization (one small
-        # Gauss-Newton step away) weighed with the root weights there.
-        cost = 0.0
-        information[c] = 0.0
-        for k in range(samples):
-            cost += _grid_sample(c, k, positions[c], velocity, biases[c], tau, motion, receivers, fixed, measured,
-                                 white, period, robust, terms)  # fmt: skip
-            for row in range(2):
-                root = terms[0, 2 + row]
-                for a in range(6):
-                    for b in range(6):
-                        information[c, a, b] += (root * last[k, row, a]) * (root * last[k, row, b])
+        _grid_velocity(
+            c, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust,
+            velocity_precision, iterations, velocity, terms, last_jacobians, normal, right, step,
+        )  # fmt: skip
+        cost = _grid_score(c, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust,
+                           velocity, terms, last_jacobians, information[c])  # fmt: skip
         costs[c] = cost + velocity_precision * (velocity[0] ** 2 + velocity[1] ** 2 + velocity[2] ** 2)
         for a in range(6):
             information[c, a, a] += position_precision if a < 3 else velocity_precision
@@ -1216,9 +1233,9 @@ def _peak_counts(rows, counts):
 
 
 def peak_counts(samples: np.ndarray) -> np.ndarray:
-    """How many samples of each channel (..., N) reach its largest magnitude - of a complex channel, its real and its
-    imaginary part's apart (..., 2) -: a clipped channel's count (:func:`aasl_gym.frontend.saturated`), in one pass
-    without NumPy's temporaries or a copy of the parts."""
+    """How many samples of each channel (..., N) reach its largest magnitude, (..., 1); of a complex channel, its real
+    and its imaginary part's apart, (..., 2). A clipped channel's count (:func:`aasl_gym.frontend.saturated`), in one
+    pass without NumPy's temporaries or a copy of the parts."""
     parts = 2 if np.iscomplexobj(samples) else 1
     samples = np.ascontiguousarray(samples, dtype=complex if parts == 2 else float)
     rows = samples.view(np.float64).reshape(-1, samples.shape[-1], parts)
@@ -1287,8 +1304,9 @@ def unscented_update(
 ) -> tuple[float, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
     """An unscented filter's update with one [RD, RRD] measurement, compiled: from its predicted ``sigmas`` (S, n), the
     measurement model's ``values`` there (S, 2), the predicted mean ``x`` and ``covariance``, the weights, R
-    (``noise``, 2 x 2) and the measurement ``measured`` (2,), the RD innovation taken modulo ``period`` (m) unless None:
-    (det S, x, P, NIS, innovation, S). Where det S is not positive the state, P and NIS are NaN (no update)."""
+    (``noise``, 2 x 2, symmetric: its upper off-diagonal is read) and the measurement ``measured`` (2,), the RD
+    innovation taken modulo ``period`` (m) unless None, as :meth:`aasl_gym.estimator.SourceTracker.residual` takes
+    it: (det S, x, P, NIS, innovation, S). Where det S is not positive the state, P and NIS are NaN (no update)."""
     dim = len(x)
     out = np.full(dim + 1 + dim * dim + 6, np.nan)
     det = _unscented_update(

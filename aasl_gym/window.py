@@ -110,9 +110,10 @@ def _evaluate(burst: Burst, model: MotionModel, states: np.ndarray):
     shares one set of multipath factors between the three), d[RD, RRD]/d[p, v] along each
     trajectory (C, K, 2, 6); else None, and :func:`_jacobian` evaluates the model again.
 
-    A model with a ``linearize`` method (the frame-averaged phasor model) takes the compiled route
-    (:func:`aasl_gym.kernels.window_terms`), where the default world spends its time; the direct path keeps
-    the NumPy form, which the tests hold the compiled one to."""
+    A model with a ``linearize`` method (the frame-averaged phasor model) takes the compiled per-sample terms
+    (:func:`aasl_gym.kernels.window_terms`); the direct path keeps the NumPy form here. A fit of either model takes
+    the compiled pass instead (:func:`_compiled_model`); this form serves the window chi-square
+    (:func:`whitened_residuals`), the few-start phasor fits and the tests' reference route."""
     trajectory = _trajectory(burst, model, states)
     linearize = getattr(burst.measurement_function, "linearize", None)
     if linearize is None:
@@ -217,7 +218,8 @@ def _compiled_model(burst: Burst, count: int) -> bool:
     frame-averaged phasor model from one vector's worth of starts (``kernels.LANES``). With fewer, NumPy, which
     vectorises across the samples too, runs the phasor model faster (two starts along a 500-sample track: 0.35
     against 0.6 ms a pass); the direct path is cheap enough that the pass wins even for one start, which then runs
-    alone (:func:`aasl_gym.kernels.fit`, unpadded)."""
+    alone, unpadded (:func:`aasl_gym.kernels.fit`, or :func:`aasl_gym.kernels.fit_terms` for CTRV and a
+    speed-limited CA)."""
     model = burst.measurement_function
     return model is direct_measurement or (isinstance(model, FrameAveragedPhasor) and count >= kernels.LANES)
 
@@ -289,8 +291,6 @@ def fit_window(
 def _fit_loop(burst, model, states, prior_mean, prior_sd, robust, iterations, compiled) -> WindowFit:
     """:func:`fit_window`'s Levenberg-Marquardt in NumPy over the compiled pass's terms (``compiled``) or NumPy's."""
     terms = _compiled_terms if compiled else _numpy_terms
-    # The NumPy route keeps LAPACK's solve: the direct path's fits (every free-field study) stay as they were, to the
-    # last bit.
     damped_steps = kernels.damped_steps if compiled else _lapack_steps
     states = np.array(states, dtype=float)
     prior_mean = np.broadcast_to(prior_mean, states.shape)

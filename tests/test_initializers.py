@@ -1,6 +1,7 @@
 """Initializers: the locus in closed form, feasible offsets, and LC-MAP on a clean burst."""
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -217,9 +218,9 @@ def test_lcmap_with_a_turn_grid_recovers_a_turning_source(rng):
 
 @pytest.mark.parametrize("robust", [False, True])
 def test_a_turn_grid_shares_its_first_linearization_without_changing_the_fit(robust, rng):
-    """The NumPy grid's velocity solve (a model other than the direct path's) linearizes its copies (one per turn
-    rate) at rest once: its velocities and Jacobians are those of linearizing every copy on its own, to the last bit
-    (robust bursts, whose whiteners carry per-residual weights, too)."""
+    """The NumPy grid's velocity solve (LC-MAP's for a model other than the direct path) linearizes its copies (one per
+    turn rate) at rest once: its velocities and Jacobians are those of linearizing every copy on its own, to the last
+    bit (robust bursts, whose whiteners carry per-residual weights, too)."""
     burst = turning_burst(np.arange(0, 20.0, 0.2), rng, robust=robust)
     initializer = make_initializer("lcmap", InitializerConfig(), REGION, "ctrv")
     positions, biases, motion = turn_grid(initializer, burst)
@@ -255,20 +256,26 @@ def turn_grid(initializer, burst):
 @pytest.mark.parametrize("motion_model", ["cv", "ctrv"])
 @pytest.mark.parametrize("robust", [False, True], ids=["plain", "robust"])
 @pytest.mark.parametrize("period", [None, 1.5], ids=["unwrapped", "wrapped"])
-def test_the_compiled_grid_is_the_numpy_grid(motion_model, robust, period, rng):
+def test_the_compiled_grid_is_the_numpy_grid(motion_model, robust, period, rng, monkeypatch):
     """LC-MAP's grid - the velocity solve from rest and the score with the last linearization's information - compiled
-    (:func:`aasl_gym.kernels.lcmap_grid`) against NumPy (``_solve_velocities`` and ``_score``), to rounding: straight
-    and turning candidates, plain and soft-L1 losses, RD residuals taken modulo the wavelength or not, on a noisy
-    burst of a turning source whose grid holds candidates near and far off it."""
+    (:func:`aasl_gym.kernels.lcmap_grid`, which a direct-path burst takes) against NumPy (``_solve_velocities`` and
+    ``_score``, which a burst of any other model takes), to rounding: straight and turning candidates, plain and
+    soft-L1 losses, RD residuals taken modulo the wavelength or not, an acoustic R with correlated RD and RRD errors
+    (a whitener with a cross term), on a noisy burst of a turning source whose grid holds candidates near and far
+    off it."""
     burst = turning_burst(
         np.arange(0, 20.0, 1.0), rng, residual_period=period, navigation_sd=(0.05, 0.02), robust=robust
     )
+    burst = replace(burst, noise_covariance=np.array([[0.05**2, 0.6 * 0.05 * 0.02], [0.6 * 0.05 * 0.02, 0.02**2]]))
     initializer = make_initializer("lcmap", InitializerConfig(), REGION, motion_model)
     positions, biases, motion = turn_grid(initializer, burst)
     copies = len(initializer.turn_rates)
-    velocities, score = initializer._grid(burst, positions, biases, motion, copies)
-    expected_velocities, jacobians = initializer._solve_velocities(burst, positions, biases, motion, copies)
-    expected_score = initializer._score(burst, positions, expected_velocities, biases, motion, jacobians)[0]
+    with monkeypatch.context() as patched:  # the direct path must not fall back to NumPy
+        patched.setattr(LCMAPInitializer, "_solve_velocities", None)
+        velocities, score = initializer._grid(burst, positions, biases, motion, copies)
+    # Any other model takes NumPy's grid: the direct path's own function, wrapped, stands in for one.
+    wrapped = replace(burst, measurement_function=lambda *state: direct_measurement(*state))
+    expected_velocities, expected_score = initializer._grid(wrapped, positions, biases, motion, copies)
     assert len(positions) > 500
     np.testing.assert_allclose(velocities, expected_velocities, rtol=0, atol=1e-9)
     np.testing.assert_allclose(score, expected_score, rtol=1e-10, atol=1e-8)

@@ -1,6 +1,8 @@
 """The sliding-window MAP against the simulated truth: exact recovery from noise-free windows, the
 robust loss against gross outliers, and its covariance against the spread of fits to noisy windows."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -219,6 +221,24 @@ def test_the_compiled_terms_are_the_numpy_terms(motion_model, speed_limit, folde
         np.testing.assert_allclose(got / scale, expected / scale, rtol=0, atol=1e-11)
 
 
+@pytest.mark.parametrize("motion_model", ["cv", "ctrv"])
+def test_the_compiled_direct_terms_hold_without_a_period_or_a_robust_loss(motion_model):
+    """The free field's fits: the direct path, RD residuals not wrapped, the plain loss. The compiled pass's loss,
+    normal matrix and gradient against the NumPy route's, to rounding, for five starts (unpadded)."""
+    from aasl_gym.window import _compiled_terms, _numpy_terms
+
+    burst, model, truth = phasor_window(motion_model, False, measurement=direct_measurement)
+    burst = replace(burst, residual_period=None)
+    states = np.repeat(truth[None], 5, axis=0)
+    states[:, 0:3] += np.random.default_rng(7).normal(0, 2.0, (5, 3))
+    loss, linearize = _compiled_terms(burst, model, states, False)
+    expected_loss, expected_linearize = _numpy_terms(burst, model, states, False)
+    np.testing.assert_allclose(loss, expected_loss, rtol=1e-12)
+    for got, expected in zip(linearize(slice(None)), expected_linearize(slice(None))):
+        scale = np.abs(expected).max(axis=tuple(range(1, expected.ndim)), keepdims=True)
+        np.testing.assert_allclose(got / scale, expected / scale, rtol=0, atol=1e-11)
+
+
 @pytest.mark.parametrize(
     "measurement, count",
     [(FRAME, 12), (direct_measurement, 12), (direct_measurement, 1)],
@@ -229,10 +249,11 @@ def test_a_fit_by_the_compiled_pass_lands_where_the_numpy_route_does(measurement
     ways: compiled whole (:func:`aasl_gym.kernels.fit`), the Python loop over the compiled pass handed the
     trajectories, and the loop over NumPy's terms with LAPACK's solve. They end at the same states, costs and
     information (rounding only), most of them at the truth. The direct path takes the compiled pass even for one
-    start (padded to a vector's worth)."""
+    start (unpadded)."""
     import aasl_gym.window as window_module
 
     burst, model, truth = phasor_window("cv", folded=True, measurement=measurement)
+    assert window_module._compiled_model(burst, count)
     rng = np.random.default_rng(5)
     starts = np.repeat(truth[None], count, axis=0)
     starts[:, 0:3] += rng.normal(0, 0.2, (count, 3))
