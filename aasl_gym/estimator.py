@@ -437,11 +437,14 @@ class SourceTracker:
                 # The Merwe weights of rows 1..2n, 1 / (2 (n + lambda)), about the central point.
                 noise[coarse] = np.einsum("hsi,hsj->hij", deviation, deviation) / (2 * self.sigma_spread)
                 z[coarse] = direct[coarse] + centre[coarse]
+        fine = ~coarse
         if receiver is not None:
             jacobian = receiver[:, 0].copy()
-        else:
-            at_mean = position[:, 0], velocity[:, 0]
-            jacobian = receiver_jacobian(self.measurement_function, *at_mean, mobile, mobile_velocity, fixed)
+        else:  # differences of the model (a dozen evaluations a row): only for the rows that keep them
+            jacobian = np.zeros((len(sigmas), 2, 6))
+            if fine.any():
+                at_mean = position[fine, 0], velocity[fine, 0]
+                jacobian[fine] = receiver_jacobian(self.measurement_function, *at_mean, mobile, mobile_velocity, fixed)
         if coarse.any():  # under the ripple alone, where the direct path's came with its values
             jacobian[coarse] = direct_receiver[coarse, 0]
         return z, noise, jacobian

@@ -519,11 +519,8 @@ class LCMAPInitializer:
         if burst.measurement_function is not direct_measurement:
             velocities, jacobians = self._solve_velocities(burst, positions, biases, motion, copies)
             return velocities, self._score(burst, positions, velocities, biases, motion, jacobians)[0]
-        if motion.straight:  # one set of s, c, cos and sin for every candidate
-            tau = motion.tau
-            motion_rows = np.stack([tau, np.zeros_like(tau), np.ones_like(tau), np.zeros_like(tau)])[:, None]
-        else:
-            motion_rows = np.stack([motion.s, motion.c, motion.cos, motion.sin])
+        shared = slice(0, 1) if motion.straight else slice(None)  # a straight grid's candidates all move alike
+        motion_rows = np.stack([motion.s[shared], motion.c[shared], motion.cos[shared], motion.sin[shared]])
         velocities, chi_square, information = kernels.lcmap_grid(
             positions,
             biases,

@@ -418,6 +418,13 @@ def tone_envelope(
 
 
 @numba.njit(inline="always", error_model="numpy")
+def _wrapped(value: float, period: float) -> float:
+    """``value`` (m) wrapped to [-period/2, period/2) by floor, which vectorises (Python's % on floats is a call to
+    fmod)."""
+    return value - period * math.floor((value + 0.5 * period) / period)
+
+
+@numba.njit(inline="always", error_model="numpy")
 def _whitener(r00, r01, r11):
     """(w00, w10, w11): W = L^-1 for R = L L^T (lower triangular) of a 2 x 2 covariance [[r00, r01], [r01, r11]]."""
     a = math.sqrt(r00)
@@ -733,8 +740,8 @@ def _sample_terms(k, width, states, measured, noise, variances, period, robust, 
         w00, w10, w11 = _whitener(r00, r01, r11)
         rd_error = measured[k, 0] - (value[0, i] + states[dim - 2, i])
         rrd_error = measured[k, 1] - (value[1, i] + states[dim - 1, i])
-        if period > 0.0:  # wrapped by floor, which vectorises (Python's % on floats is a call to fmod)
-            rd_error -= period * math.floor((rd_error + 0.5 * period) / period)
+        if period > 0.0:
+            rd_error = _wrapped(rd_error, period)
         e0, e1 = w00 * rd_error, w10 * rd_error + w11 * rrd_error
         white[0, i], white[1, i], white[2, i] = w00, w10, w11
         error[0, i], error[1, i] = e0, e1
@@ -1091,7 +1098,7 @@ def _grid_sample(c, k, position, velocity, bias, tau, motion, receivers, fixed, 
     rd_error = measured[k, 0] - rd - bias
     rrd_error = measured[k, 1] - rrd
     if period > 0.0:
-        rd_error -= period * math.floor((rd_error + 0.5 * period) / period)
+        rd_error = _wrapped(rd_error, period)
     e0 = white[0, 0] * rd_error + white[0, 1] * rrd_error
     e1 = white[1, 0] * rd_error + white[1, 1] * rrd_error
     if robust:
@@ -1268,7 +1275,7 @@ def _unscented_update(sigmas, values, x, covariance, mean_weights, cov_weights, 
     det = s00 * s11 - s01 * s01
     y0, y1 = measured[0] - z0, measured[1] - z1
     if period > 0.0:
-        y0 -= period * math.floor((y0 + 0.5 * period) / period)
+        y0 = _wrapped(y0, period)
     out[dim + 1 + dim * dim :] = np.array([y0, y1, s00, s01, s01, s11])
     if not det > 0.0:
         return det
