@@ -1176,6 +1176,16 @@ class SourceTracker:
         self.reseeding = self.reseed_length > 0
         return True
 
+    def fit_kept_track(self, states: np.ndarray) -> WindowFit:
+        """The MAP fit of every kept measurement (the whole episode's where the tracker keeps its track:
+        ``track_length`` > 0) from each of ``states`` (C, n; the filter's layout at the last measurement's
+        time), under the models, loss and window prior of the track checks (:meth:`_check_sheets`,
+        :meth:`_refit_track`). For studies: started at the truth, it is what an estimator that never has to
+        search for its basin reaches (``benchmarks/crb_bound.py --oracle``)."""
+        burst = self._burst(len(self.history), fine=self.ripple)
+        prior_mean, prior_sd = self._window_prior(states)
+        return fit_window(burst, self.track_model, states, prior_mean, prior_sd, robust=self.ripple)
+
     @property
     def ukf(self) -> UnscentedKalmanFilter:
         """The likeliest hypothesis's filter (only once initialized)."""

@@ -330,6 +330,29 @@ def test_a_sheet_check_adopts_the_whole_track_fit():
             assert np.array_equal(after, before)
 
 
+def test_the_kept_track_fit_from_the_truth_is_the_whole_track_least_squares():
+    """``SourceTracker.fit_kept_track`` started at the truth (as ``benchmarks/crb_bound.py --oracle`` starts it: the
+    true whole-period offset from the measured and true RD) against SciPy's solution of the whole track from the same
+    start; it stays in the truth's basin."""
+    config = STUDY.replace(
+        measurement={"mode": "geometric"}, source={"motion": "cv"}, receiver={"nav_position_sd": 0.0}
+    )
+    env = AASLEnv(config, patrol="helix")
+    env.reset(seed=2)
+    for _ in range(500):
+        _, _, _, _, info = env.step(np.zeros(3))
+    tracker = env.tracker
+    assert tracker.window_start <= tracker.history[0][0]  # the kept track is the filter's whole track
+    truth = np.zeros(tracker.model.dim)
+    truth[0:3], truth[3:6] = env.source.position, env.source.velocity
+    truth[-2] = 1.5 * np.round((info["measurement"][0] - info["measurement_true"][0]) / 1.5)
+    fit = tracker.fit_kept_track(truth[None])
+    solution = _whole_track_least_squares(tracker, truth)
+    assert np.linalg.norm(fit.states[0, 0:3] - solution[0:3]) < 1e-4
+    assert np.linalg.norm(fit.states[0, 3:6] - solution[3:6]) < 1e-6
+    assert np.linalg.norm(fit.states[0, 0:3] - truth[0:3]) < 0.5
+
+
 def test_the_tracker_leaves_a_wrong_whole_period_sheet():
     """At 72 s the bank is replaced by one confident filter on the neighbouring sheet: a position 1-3 m
     away whose RD, with b_p one wavelength lower, predicts this step's measurement exactly. Its
