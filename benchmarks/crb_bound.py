@@ -45,6 +45,7 @@ share without its Gaussian approximation, what a tracker that always finds the r
 from __future__ import annotations
 
 import argparse
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -190,10 +191,12 @@ def episode_covariance(env: AASLEnv, seed: int, model: str = "direct") -> np.nda
     return np.einsum("kia,kab,kjb->kij", d_position, covariance, d_position)
 
 
-def run_tracker(env: AASLEnv, seed: int) -> list[dict]:
-    """Episode ``seed`` of ``env`` (the tracker's) on the scripted patrol: every step's info."""
+def run_tracker(env: AASLEnv, seed: int) -> tuple[SourceState, list[dict]]:
+    """Episode ``seed`` of ``env`` (the tracker's) on the scripted patrol: the source's state at the start and every
+    step's info."""
     env.reset(seed=seed)
-    return [env.step(np.zeros(3))[4] for _ in range(env.max_steps)]
+    initial = copy.deepcopy(env.source)
+    return initial, [env.step(np.zeros(3))[4] for _ in range(env.max_steps)]
 
 
 def tracked_squares(infos: list[dict], covariance: np.ndarray, target: float) -> tuple[bool, np.ndarray]:
@@ -209,17 +212,20 @@ def tracked_squares(infos: list[dict], covariance: np.ndarray, target: float) ->
     return success, np.array([np.sum(errors[kept] ** 2), np.sum(np.trace(covariance[kept], axis1=1, axis2=2))])
 
 
-def true_state(env: AASLEnv, last: dict) -> np.ndarray:
-    """The source's state at the episode's end in the tracker's filter layout: position, velocity, the turn rate
-    (CTRV) or acceleration (CA), the whole-period RD offset the unwrapped track carries (the measured RD's
-    offset from the truth's, rounded to whole periods; ``last`` the last step's info) and the rate bias."""
-    tracker, source = env.tracker, env.source
+def true_state(env: AASLEnv, initial: SourceState, last: dict) -> np.ndarray:
+    """The source's state at the episode's end in the tracker's filter layout: its start (``initial``: position,
+    velocity, turn rate or acceleration) run on by the tracker's own motion model (a CA state's velocity is the one
+    without the speed limit, the fold at the depth bounds the world's bounce), the whole-period RD offset the
+    unwrapped track carries (the measured RD's offset from the truth's at the end, rounded to whole periods;
+    ``last`` the last step's info) and the rate bias."""
+    tracker = env.tracker
     state = np.zeros(tracker.model.dim)
-    state[0:3], state[3:6] = source.position, source.velocity
+    state[0:3], state[3:6] = initial.position, initial.velocity
     if tracker.model.name == "ctrv":
-        state[6] = source.turn_rate
+        state[6] = initial.turn_rate
     elif tracker.model.name == "ca":
-        state[6:9] = source.acceleration
+        state[6:9] = initial.acceleration
+    state = tracker.track_model.trajectory(state[None], np.array([last["time"]]))[0, 0]
     period = tracker.wavelength
     offset = last["measurement"][0] - last["measurement_true"][0]
     state[-2] = 0.0 if period is None else period * np.round(offset / period)
@@ -227,15 +233,15 @@ def true_state(env: AASLEnv, last: dict) -> np.ndarray:
     return state
 
 
-def oracle_error(env: AASLEnv, last: dict) -> float:
-    """After an episode of ``env`` (``last`` its last step's info): the position error (m) at the end of the whole
-    track's MAP fit (:meth:`aasl_gym.estimator.SourceTracker.fit_kept_track`) started at the truth and at the
-    tracker's estimate, the fit that explains the track better. An estimator that never has to search for its
-    basin ends there; the bound's Gaussian approximates it."""
+def oracle_error(env: AASLEnv, initial: SourceState, last: dict) -> float:
+    """After an episode of ``env`` (``initial`` the source's start, ``last`` the last step's info): the position
+    error (m) at the end of the whole track's MAP fit (:meth:`aasl_gym.estimator.SourceTracker.fit_kept_track`)
+    started at the truth and at the tracker's estimate, the fit that explains the track better. An estimator that
+    never has to search for its basin ends there; the bound's Gaussian approximates it."""
     tracker = env.tracker
     if tracker.track_length == 0:
         raise SystemExit("--oracle: the tracker keeps no whole track here (filter.track_fit is off)")
-    truth = true_state(env, last)
+    truth = true_state(env, initial, last)
     starts = np.stack([truth, tracker.ukf.x]) if tracker.initialized else truth[None]
     fit = tracker.fit_kept_track(starts)
     best = int(np.argmin(fit.costs))
@@ -353,12 +359,12 @@ def motion_row(args: argparse.Namespace, base: EnvConfig, motion: str, level: fl
     for seed in tqdm(range(args.seed, args.seed + args.episodes), desc=motion, unit="ep", leave=False):
         covariance = episode_covariance(env, seed, args.model)
         if args.tracker:
-            infos = run_tracker(tracker_env, seed)
+            initial, infos = run_tracker(tracker_env, seed)
             success, squares = tracked_squares(infos, covariance, args.target)
             successes.append(success)
             squared += squares
             if args.oracle:
-                oracle.append(oracle_error(tracker_env, infos[-1]) < args.target)
+                oracle.append(oracle_error(tracker_env, initial, infos[-1]) < args.target)
         bound = np.sqrt(np.trace(covariance, axis1=1, axis2=2))
         above = np.nonzero(bound >= args.target)[0]
         last_above = above[-1] if len(above) else -1
