@@ -353,6 +353,34 @@ def test_the_kept_track_fit_from_the_truth_is_the_whole_track_least_squares():
     assert np.linalg.norm(fit.states[0, 0:3] - truth[0:3]) < 0.5
 
 
+def test_a_re_started_tracks_check_takes_in_the_earlier_measurements_where_they_agree():
+    """After a re-start the sheet check fits the track since it; the measurements before it join that fit where they
+    agree with it (chi-square): the adopted state is then the whole history's fit from it (``fit_kept_track``), here
+    nearer the truth than the track's own. Earlier measurements that disagree (RD moved by 1 m, twenty sigma) are
+    left out."""
+    config = STUDY.replace(
+        measurement={"mode": "geometric"}, source={"motion": "cv"}, receiver={"nav_position_sd": 0.0}
+    )
+    env = AASLEnv(config, patrol="helix")
+    env.reset(seed=2)
+    for _ in range(400):
+        env.step(np.zeros(3))
+    tracker = env.tracker
+    length = tracker._samples_since(30.0)  # as if the track had re-started at 30 s
+    start = tracker.ukf.x[None]
+    track = fit_window(tracker._burst(length), tracker.model, start, *tracker._window_prior(start))
+    state, covariance = track.states[0], np.linalg.inv(track.information[0])
+    joined, _ = tracker._with_earlier(state, covariance, length)
+    np.testing.assert_allclose(joined, tracker.fit_kept_track(state[None]).states[0], rtol=0, atol=1e-9)
+    error = lambda x: np.linalg.norm(x[0:3] - env.source.position)  # noqa: E731
+    assert error(joined) < error(state)  # 0.16 against 0.22 m
+    history = tracker.history
+    earlier = slice(history._end - len(history), history._end - length)
+    history._z[earlier, 0] += 1.0
+    kept, kept_covariance = tracker._with_earlier(state, covariance, length)
+    assert np.array_equal(kept, state) and np.array_equal(kept_covariance, covariance)
+
+
 def test_the_tracker_leaves_a_wrong_whole_period_sheet():
     """At 72 s the bank is replaced by one confident filter on the neighbouring sheet: a position 1-3 m
     away whose RD, with b_p one wavelength lower, predicts this step's measurement exactly. Its
