@@ -852,13 +852,13 @@ class SourceTracker:
 
     def _with_earlier(self, state: np.ndarray, covariance: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray]:
         """After a re-start the track is the measurements since it (``length``, of which ``state`` is the fit): the
-        whole history's fit from ``state`` instead, with its covariance, where the earlier measurements
-        agree with it (they add at most the ``EARLIER_QUANTILE`` quantile of chi-square to the cost, and the fit stays
-        in the track's fit's region of that quantile). The first
-        seconds, at close range, carry much of an episode's information: on tuning seeds re-started at 12 and 17 s
-        (1323, 1195) the filter ended 1.0 and 1.4 m off, the whole history's fit 0.16 m."""
+        whole history's fit from ``state`` instead, with its covariance, where the earlier measurements agree with it
+        (they add at most the ``EARLIER_QUANTILE`` quantile of chi-square to the cost, and the fit stays in the track
+        fit's region of that quantile). The first seconds, at close range, carry much of an episode's information:
+        on tuning seeds re-started at 12 and 17 s (1323, 1195) the filter ended 1.0 and 1.4 m off, the whole
+        history's fit 0.16 m."""
         earlier = len(self.history) - length
-        if earlier <= 0:
+        if earlier <= 0 or not np.all(np.isfinite(covariance)):
             return state, covariance
         prior_mean, prior_sd = self._window_prior(state[None])
         track, whole = (
