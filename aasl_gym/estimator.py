@@ -837,12 +837,12 @@ class SourceTracker:
         noise forgets the early, close-range data of a source that has since moved 100 m away."""
         states = np.concatenate([self.ukf.x[None], self._sheet_neighbours(self.ukf.x), self._carried_track_fit(time)])
         since = self.window_start if self.track_length else time - self.config.initializer.reseed_until
-        fits = self._fit_window(self._samples_since(since), states)
+        length = self._samples_since(since)
+        fits = self._fit_window(length, states)
         # The filter's own sheet: itself and (index 3, after the two neighbours) the last whole-track fit carried on.
         running = next(fit for fit in fits if fit[0] in (0, 3))
         if running[3] > -self.config.filter.prune_log_ratio:
             if self.track_length:
-                length = self._samples_since(since)
                 state, covariance = self._with_earlier(running[1], running[2], length)
                 self._adopt_track_fit(self.ukf, state, covariance, time)
             return False
