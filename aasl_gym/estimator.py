@@ -969,8 +969,16 @@ class SourceTracker:
             prior_sd[6:9] = ini.acceleration_prior_sd
         prior_sd[-2:] = (self.config.wavelength if self.ripple else ini.range_bias_sd), ini.rate_bias_sd
         prior_mean = np.zeros_like(states)
-        prior_mean[:, -2] = states[:, -2]
+        prior_mean[:, -2] = self._sheet_of(states[:, -2])
         return prior_mean, prior_sd
+
+    def _sheet_of(self, range_bias: np.ndarray) -> np.ndarray:
+        """The RD offset b_p (m) a window fit holds each start to: where it is, or, where b_p does not wander
+        (``filter.range_bias_psd`` 0), the nearest whole period - what the sensor's offset is (SPEC 3). A start
+        that knows no sheet (naive's, tdoa-ls's) would otherwise be held off every sheet."""
+        if self.config.filter.range_bias_psd > 0 or self.ripple or not self.wavelength:
+            return range_bias
+        return self.wavelength * np.round(range_bias / self.wavelength)
 
     def _implausible(self, ukf: UnscentedKalmanFilter, time: float) -> bool:
         if not np.all(np.isfinite(ukf.x)):
