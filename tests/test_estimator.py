@@ -381,6 +381,37 @@ def test_a_re_started_tracks_check_takes_in_the_earlier_measurements_where_they_
     assert np.array_equal(kept, state) and np.array_equal(kept_covariance, covariance)
 
 
+def test_a_window_fit_holds_a_fixed_offset_to_whole_periods():
+    """Without b_p's random walk (``configs/initializer_study.yaml``) a window fit holds a start's b_p to the
+    nearest whole period, where the sensor's offset lies: a start 0.4 m off every sheet (as naive's or tdoa-ls's
+    filter may sit) ends on the true one, found from the measured and true RD; held where it starts, with the
+    same 1 mm, it would stay off every sheet. With the random walk (the default) b_p is held where it is."""
+    config = STUDY.replace(
+        measurement={"mode": "geometric"},
+        source={"motion": "cv"},
+        filter={"range_bias_psd": 0.0},
+        initializer={"range_bias_sd": 0.001},
+    )
+    env = AASLEnv(config, patrol="helix")
+    env.reset(seed=2)
+    for _ in range(300):
+        _, _, _, _, info = env.step(np.zeros(3))
+    tracker = env.tracker
+    true_offset = 1.5 * np.round((info["measurement"][0] - info["measurement_true"][0]) / 1.5)
+    start = np.zeros((1, tracker.model.dim))
+    start[0, 0:3], start[0, 3:6], start[0, -2] = env.source.position, env.source.velocity, true_offset + 0.4
+    burst = tracker._burst(len(tracker.history))
+    prior_mean, prior_sd = tracker._window_prior(start)
+    fit = fit_window(burst, tracker.model, start, prior_mean, prior_sd)
+    assert fit.states[0, -2] == pytest.approx(true_offset, abs=0.01)
+    assert np.linalg.norm(fit.states[0, 0:3] - env.source.position) < 0.5
+    prior_mean[0, -2] = start[0, -2]
+    held = fit_window(burst, tracker.model, start, prior_mean, prior_sd)
+    assert abs(held.states[0, -2] - true_offset) > 0.3
+    default = AASLEnv(STUDY.replace(measurement={"mode": "geometric"}), patrol="helix").tracker
+    assert default._window_prior(start)[0][0, -2] == start[0, -2]
+
+
 def test_the_tracker_leaves_a_wrong_whole_period_sheet():
     """At 72 s the bank is replaced by one confident filter on the neighbouring sheet: a position 1-3 m
     away whose RD, with b_p one wavelength lower, predicts this step's measurement exactly. Its
