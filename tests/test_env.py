@@ -228,23 +228,26 @@ def test_signal_mode_passes_the_env_checkers_and_repeats_bit_for_bit(path):
 
 def test_signal_mode_measures_the_geometry_up_to_whole_wavelengths():
     """Free field: the front end's RD (info['measurement']) is the geometry's (info['measurement_true'])
-    plus one fixed whole number of wavelengths, within a few sd of the R it hands the filter; its RRD
-    matches likewise; the measured SNR is the model's within 1 dB."""
+    plus one fixed whole number of wavelengths, within a few sd of the R it hands the filter, and no part
+    of a period on average (the initializer study's filter takes b_p as whole periods); its RRD matches
+    likewise; the measured SNR is the model's within 1 dB."""
     env = gym.make("AASL-Helix-v0", config=SIGNAL, source_motion="cv", reflections=False, multipath="none").unwrapped
     env.reset(seed=11)
     wavelength = env.config.wavelength
-    offsets, rrd_errors = [], []
+    offsets, rd_errors, rrd_errors = [], [], []
     for _ in range(50):
         *_, info = env.step(np.zeros(3))
         sd = np.sqrt(np.diag(env.sensor.covariance()))
         periods = (info["measurement"][0] - info["measurement_true"][0]) / wavelength
         assert abs(periods - round(periods)) * wavelength < 5 * sd[0]
         offsets.append(round(periods))
+        rd_errors.append((periods - round(periods)) * wavelength / sd[0])
         rrd_errors.append((info["measurement"][1] - info["measurement_true"][1]) / sd[1])
         receivers = np.array([info["receiver_position"], info["fixed_position"]])
         model_snr_db = 10 * np.log10(np.min(model_snr(env.config, info["source_position"], receivers)))
         assert info["snr_db"] == pytest.approx(model_snr_db, abs=1.0)
     assert len(set(offsets)) == 1
+    assert abs(np.mean(rd_errors)) < 4 / np.sqrt(len(rd_errors))  # in sd: a bias of 0.57 sd would fail
     assert np.std(rrd_errors) < 1.5  # the R handed to the filter is not too small
 
 
