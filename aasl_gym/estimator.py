@@ -860,11 +860,8 @@ class SourceTracker:
         earlier = len(self.history) - length
         if earlier <= 0 or not np.all(np.isfinite(covariance)):
             return state, covariance
-        prior_mean, prior_sd = self._window_prior(state[None])
-        track, whole = (
-            fit_window(self._burst(n), self.model, state[None], prior_mean, prior_sd)
-            for n in (length, len(self.history))
-        )
+        track = fit_window(self._burst(length), self.model, state[None], *self._window_prior(state[None]))
+        whole = self.fit_kept_track(state[None])  # sheet checks run without the ripple: the same models and prior
         covariance_whole = _covariances(whole.information, self.config.initializer.covariance_inflation)[0]
         agree = whole.costs[0] - track.costs[0] <= stats.chi2.ppf(EARLIER_QUANTILE, 2 * earlier)
         # ...and refine the track's fit rather than move it: within its own covariance's region (a speed-limited CA's
@@ -1218,8 +1215,9 @@ class SourceTracker:
         """The MAP fit of every kept measurement (the whole episode's where the tracker keeps its track:
         ``track_length`` > 0) from each of ``states`` (C, n; the filter's layout at the last measurement's
         time), under the models, loss and window prior of the track checks (:meth:`_check_sheets`,
-        :meth:`_refit_track`). For studies: started at the truth, it is what an estimator that never has to
-        search for its basin reaches (``benchmarks/crb_bound.py --oracle``)."""
+        :meth:`_refit_track`); a re-started track's check takes it in (:meth:`_with_earlier`). For studies: started
+        at the truth, it is what an estimator that never has to search for its basin reaches
+        (``benchmarks/crb_bound.py --oracle``)."""
         burst = self._burst(len(self.history), fine=self.ripple)
         prior_mean, prior_sd = self._window_prior(states)
         return fit_window(burst, self.track_model, states, prior_mean, prior_sd, robust=self.ripple)
