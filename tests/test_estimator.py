@@ -3,13 +3,14 @@
 import copy
 import itertools
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from aasl_gym import estimator
-from aasl_gym.config import EnvConfig
+from aasl_gym import estimator, geometry
+from aasl_gym.config import EnvConfig, load_config
 from aasl_gym.env import AASLEnv
 from aasl_gym.estimator import MeasurementHistory
 from aasl_gym.initializers import Burst, subsample
@@ -410,6 +411,54 @@ def test_a_window_fit_holds_a_fixed_offset_to_whole_periods():
     assert abs(held.states[0, -2] - true_offset) > 0.3
     default = AASLEnv(STUDY.replace(measurement={"mode": "geometric"}), patrol="helix").tracker
     assert default._window_prior(start)[0][0, -2] == start[0, -2]
+
+
+def test_a_window_fit_start_far_off_its_sheet_starts_on_it():
+    """Without b_p's random walk a start whose b_p lies half a metre off every sheet (as naive's filter may) starts
+    its fit on the nearest sheet, moved along the direct RD's gradient so that the RD it predicts at the latest
+    receiver position (b_p included, computed here from the geometry) is what it was; a start within
+    ``SHEET_REACH`` prior sd of its sheet, and every start under the default's random walk, stay as they are."""
+    config = STUDY.replace(filter={"range_bias_psd": 0.0}, initializer={"range_bias_sd": 0.001})
+    env = AASLEnv(config.replace(measurement={"mode": "geometric"}), patrol="helix")
+    env.reset(seed=0)
+    for _ in range(50):
+        env.step(np.zeros(3))
+    tracker = env.tracker
+    mobile = tracker.history[-1][2]
+    far, near = np.zeros((2, tracker.model.dim))
+    far[0:3], far[-2] = [25.0, -12.0, -8.0], -2.46  # 0.54 m from the sheet at -3.0
+    near[0:3], near[-2] = [5.0, 4.0, -6.0], 1.5 + 0.004
+    moved = tracker._onto_sheets(np.stack([far, near]))
+    predicted = lambda x: geometry.range_difference(x[0:3], mobile, env.fixed) + x[-2]  # noqa: E731
+    assert moved[0, -2] == pytest.approx(-3.0, abs=1e-12)
+    assert predicted(moved[0]) == pytest.approx(predicted(far), abs=1e-6)
+    assert 0.1 < np.linalg.norm(moved[0, 0:3] - far[0:3]) < 20.0
+    np.testing.assert_array_equal(moved[1], near)
+    default = AASLEnv(STUDY.replace(measurement={"mode": "geometric"}), patrol="helix").tracker
+    np.testing.assert_array_equal(default._onto_sheets(far[None]), far[None])
+
+
+def test_a_recovery_switches_sheet_only_to_a_fit_that_explains_the_track():
+    """Naive's filter on a CTRV source (free-field study config, tuning seed 1046) runs 10-30 m off with b_p off
+    every sheet. In a recovery the sheet check's fits from it lie metres off on every sheet; a neighbour's fit that
+    wins by the pruning ratio without explaining the track does not take over, and the recovery's re-seed runs
+    LC-MAP: by 100 s the tracker re-started twice and is within 1 m of the source (0.07 m). Switched all the same, the
+    tracker changed sheet at every recovery, 5 s apart (14 re-starts by 100 s, 9.6 m off; 4.3 m off at 120 s)."""
+    study = load_config(Path(__file__).parents[1] / "configs" / "initializer_study.yaml")
+
+    def run() -> tuple[int, float]:
+        env = AASLEnv(study, patrol="helix", source_motion="ctrv", initializer="naive", filter_model="ctrv")
+        env.reset(seed=1046)
+        for _ in range(500):
+            info = env.step(np.zeros(3))[4]
+        return env.tracker.reinitializations, info["position_error"]
+
+    restarts, error = run()
+    assert restarts <= 2 and error < 1.0
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(estimator.SourceTracker, "_explains", lambda self, length, state: True)
+        restarts, error = run()
+    assert restarts >= 8 and error > 3.0
 
 
 def test_the_tracker_leaves_a_wrong_whole_period_sheet():
