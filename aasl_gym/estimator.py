@@ -162,8 +162,8 @@ FRESH_SEARCH_UNTIL = 10.0
 # A re-started track's check takes the whole history where the earlier measurements add no more to the cost than
 # this quantile of chi-square (two degrees of freedom a measurement) allows (:meth:`SourceTracker._with_earlier`).
 EARLIER_QUANTILE = 0.999
-# A window-fit start whose b_p lies further than this many of the prior's sd from the whole-period sheet the fit holds it
-# to starts on that sheet (:meth:`SourceTracker._onto_sheets`).
+# A window-fit start whose b_p lies further than this many of the prior's sd from the whole-period sheet the fit holds
+# it to starts on that sheet (:meth:`SourceTracker._onto_sheets`).
 SHEET_REACH = 5.0
 # A recovery's sheet check switches to a neighbouring sheet only if that sheet's fit explains the track: its window
 # chi-square below this quantile (:meth:`SourceTracker._check_sheets`).
@@ -826,7 +826,9 @@ class SourceTracker:
         moved[-2] -= shift
         target = geometry.range_difference(x[0:3], mobile, self.fixed) + shift
         for _ in range(3):
-            (to_mobile, unit_mobile), (to_fixed, unit_fixed) = (geometry.ranges(moved[0:3], r) for r in (mobile, self.fixed))
+            (to_mobile, unit_mobile), (to_fixed, unit_fixed) = (
+                geometry.ranges(moved[0:3], r) for r in (mobile, self.fixed)
+            )
             gradient = unit_mobile - unit_fixed  # d RD / d p
             moved[0:3] += gradient * (target - (to_mobile - to_fixed)) / max(gradient @ gradient, 1e-6)
         return moved
