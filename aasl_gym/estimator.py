@@ -810,9 +810,8 @@ class SourceTracker:
         return found, winner
 
     def _sheet_neighbours(self, x: np.ndarray) -> np.ndarray:
-        """``x`` moved onto the two neighbouring whole-period sheets (2, n): b_p -+ one wavelength, and the
-        position moved along the direct RD's gradient (Newton steps at the latest receiver position) so
-        that the predicted RD stays what it was."""
+        """``x`` moved onto the two neighbouring whole-period sheets (2, n): b_p -+ one wavelength, the position
+        with it (:meth:`_bias_moved`)."""
         assert self.wavelength is not None  # only when the sheets are checkable: a tone
         return np.stack([self._bias_moved(x, periods * self.wavelength) for periods in (1.0, -1.0)])
 
