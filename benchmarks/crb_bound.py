@@ -26,7 +26,10 @@ Reported per motion: the share of episodes whose bound on the position error sd 
 covariance's trace) falls below ``--target`` metres and stays there to the end, the median time it
 first does, and the mean chance that an efficient estimator - its error Gaussian with the bound's
 covariance - ends within ``--target`` (what a tracker's success at that threshold can be expected to
-reach: a bound's sd of 0.8 m still leaves the error beyond 1 m in about a third of the episodes).
+reach: a bound's sd of 0.8 m still leaves the error beyond 1 m in about a third of the episodes), and the central
+90 % range of that estimator's count over the episodes (each episode a coin with its own chance): a share over 100
+episodes moves by a few points by luck alone. With ``--tracker``, the chance that the efficient estimator ends within
+the target in as few episodes as the tracker did.
 
 ``--tracker`` runs the tracker on the same episodes beside the bound (its success and its RMSE after convergence
 over the bound's); ``--oracle`` adds the share whose whole-track MAP fit started at the truth (and at the tracker's
@@ -49,6 +52,7 @@ import copy
 from dataclasses import replace
 
 import numpy as np
+from scipy.stats import poisson_binom
 from tqdm import tqdm
 
 from aasl_gym.config import EnvConfig
@@ -124,6 +128,23 @@ def efficient_success(covariance: np.ndarray, target: float, rng: np.random.Gene
     efficient estimator outside it a third of the time or more."""
     errors = rng.multivariate_normal(np.zeros(3), covariance, size=draws)
     return float(np.mean(np.linalg.norm(errors, axis=1) < target))
+
+
+def efficient_count_range(chances: list[float], level: float = 0.9) -> tuple[int, int]:
+    """The central ``level`` range of the number of episodes an efficient estimator ends within the target, each
+    episode on its own with its chance in ``chances`` (a Poisson-binomial count): how far a share over this many
+    episodes moves by luck alone, with no change in the estimator's quality."""
+    tail = (1.0 - level) / 2.0
+    # From the cdf: SciPy 1.17's poisson_binom.ppf fails beyond about 60 episodes (a ufunc's operand limit).
+    cdf = poisson_binom(np.asarray(chances)).cdf(np.arange(len(chances) + 1))
+    low, high = np.searchsorted(cdf, np.array([tail, 1.0 - tail]) - 1e-12)  # the first count whose cdf reaches each
+    return int(low), int(high)
+
+
+def as_few_chance(chances: list[float], count: int) -> float:
+    """The chance that an efficient estimator (its episodes' ``chances``) ends within the target in ``count`` episodes
+    or fewer: a tracker's count with a small chance here falls short of the bound; with a fair one, by luck."""
+    return float(poisson_binom(np.asarray(chances)).cdf(count))
 
 
 def episode_covariance(env: AASLEnv, seed: int, model: str = "direct") -> np.ndarray:
@@ -320,20 +341,23 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_arguments(argv)
     base = command_line_config(args.scenario, args.config, "configs/initializer_study.yaml")
     levels = [None] if args.nav_sd is None else args.nav_sd
-    tracker_columns = f" tracker's success at {args.target} m | its RMSE after convergence / the bound's |"
+    tracker_columns = (
+        f" tracker's success at {args.target} m | an efficient estimator's chance of as few |"
+        " its RMSE after convergence / the bound's |"
+    )
     oracle_column = f" the whole track's MAP from the truth within {args.target} m at the end |"
     navigation = args.nav_sd is not None
     header = [
         ("| motion | sigma_rov (m) |" if navigation else "| motion |")
         + f" episodes | bound < {args.target} m to the end | median first time (s) "
-        f"| efficient estimator within {args.target} m at the end |"
+        f"| efficient estimator within {args.target} m at the end | its count, 90 % range |"
         + (" bound's RMSE from the burst on (m) |" if navigation else "")
         + (tracker_columns if args.tracker else "")
         + (oracle_column if args.oracle else ""),
         ("|---|---|" if navigation else "|---|")
-        + "---|---|---|---|"
+        + "---|---|---|---|---|"
         + ("---|" if navigation else "")
-        + ("---|---|" if args.tracker else "")
+        + ("---|---|---|" if args.tracker else "")
         + ("---|" if args.oracle else ""),
     ]
     rng = np.random.default_rng(args.seed)
@@ -375,11 +399,13 @@ def motion_row(args: argparse.Namespace, base: EnvConfig, motion: str, level: fl
     reached = np.isfinite(times)
     median = np.median(times[reached]) if reached.any() else float("nan")
     line = f"| {motion} |" + ("" if level is None else f" {level:g} |")
-    line += f" {len(times)} | {reached.mean():.0%} | {median:.1f} | {np.mean(efficient):.0%} |"
+    low, high = efficient_count_range(efficient)
+    line += f" {len(times)} | {reached.mean():.0%} | {median:.1f} | {np.mean(efficient):.0%} | {low}-{high} |"
     if level is not None:
         line += f" {np.mean(rmse_bounds):.2f} |"
     if args.tracker:
-        line += f" {np.mean(successes):.0%} | {np.sqrt(squared[0] / squared[1]):.2f} |"
+        chance = as_few_chance(efficient, int(np.sum(successes)))
+        line += f" {np.mean(successes):.0%} | {chance:.0%} | {np.sqrt(squared[0] / squared[1]):.2f} |"
     if args.oracle:
         line += f" {np.mean(oracle):.0%} |"
     return line

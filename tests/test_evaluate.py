@@ -45,6 +45,7 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     assert set(results) >= {"command", "config", "episodes", "summary"}
     # Where it ran: a seed's episode is the same to the last bit only on one machine and build.
     assert results["platform"]["numpy"] == np.__version__ and results["platform"]["processor"]
+    assert isinstance(results["platform"]["blas"], str)  # the BLAS kernels (threadpoolctl; empty if none is found)
     assert len(results["episodes"]) == 4
     assert "trajectory" not in results["episodes"][0]  # the paths go into the plots, not the results
     row = results["episodes"][0]

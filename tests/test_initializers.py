@@ -278,7 +278,8 @@ def test_the_compiled_grid_is_the_numpy_grid(motion_model, robust, period, rng, 
     expected_velocities, expected_score = initializer._grid(wrapped, positions, biases, motion, copies)
     assert len(positions) > 500
     np.testing.assert_allclose(velocities, expected_velocities, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(score, expected_score, rtol=1e-10, atol=1e-8)
+    # Sums of a few hundred squares in another order: 1.2e-10 apart on an AVX-512 machine (OpenBLAS's SkylakeX kernels).
+    np.testing.assert_allclose(score, expected_score, rtol=1e-9, atol=1e-8)
 
 
 def test_lcmap_with_a_ca_filter_fits_the_acceleration(rng):

@@ -13,6 +13,7 @@ from typing import Any
 import numba
 import numpy as np
 import scipy
+from threadpoolctl import threadpool_info
 
 from aasl_gym.io import atomic_write_json, atomic_write_text
 
@@ -20,10 +21,12 @@ Row = dict[str, Any]  # one episode's results (``agents.rollout``'s keys), as th
 
 
 def platform_record() -> dict[str, str]:
-    """Where a report was written: Python, NumPy, SciPy and numba versions and the processor. A seed's episode is the
-    same to the last bit on one machine and build; on another (CPU, or builds of NumPy and its BLAS) the
-    vectorized math can round differently in the last bit, and the tracker's decisions amplify that (rows
-    resumed from an earlier run may come from another machine)."""
+    """Where a report was written: Python, NumPy, SciPy and numba versions, the processor and the BLAS kernels. A
+    seed's episode is the same to the last bit on one machine and build; on another (CPU, or builds of NumPy and
+    its BLAS) the vectorized math can round differently in the last bit, and the tracker's decisions amplify that
+    (rows resumed from an earlier run may come from another machine). OpenBLAS picks its kernels by processor:
+    on an AVX-512 machine (SkylakeX kernels) committed rows made with the Haswell kernels differ from the 12th
+    digit on, and ``OPENBLAS_CORETYPE=Haswell`` brings them back to the bit (README)."""
     return {
         "python": platform.python_version(),
         "numpy": np.__version__,
@@ -31,12 +34,22 @@ def platform_record() -> dict[str, str]:
         "numba": numba.__version__,  # the compiled phasor model and sine (aasl_gym.kernels)
         "machine": platform.machine(),
         "processor": _processor_name(),
+        "blas": _blas_kernels(),
     }
 
 
 def write_results_json(path: str | Path, results: dict[str, Any]) -> None:
     """A study's ``results.json``, atomically, with the :func:`platform_record` of where it was written."""
     atomic_write_json(path, results | {"platform": platform_record()})
+
+
+def _blas_kernels() -> str:
+    """The BLAS libraries loaded (NumPy's and SciPy's), each with its version and the kernels it chose, e.g.
+    ``openblas 0.3.30 Haswell``; threadpoolctl reads them from the libraries themselves."""
+    libraries = [info for info in threadpool_info() if info.get("user_api") == "blas"]
+    return "; ".join(
+        " ".join(str(info.get(key) or "?") for key in ("internal_api", "version", "architecture")) for info in libraries
+    )
 
 
 def _processor_name() -> str:
