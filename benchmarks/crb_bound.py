@@ -130,13 +130,18 @@ def efficient_success(covariance: np.ndarray, target: float, rng: np.random.Gene
     return float(np.mean(np.linalg.norm(errors, axis=1) < target))
 
 
+def _count_cdf(chances: list[float]) -> np.ndarray:
+    """The cdf (0..N) of the number of episodes an efficient estimator ends within the target, each episode on its
+    own with its chance in ``chances``: a Poisson-binomial count. (SciPy 1.17's poisson_binom.ppf fails beyond about
+    60 episodes, a ufunc's operand limit; its cdf does not.)"""
+    return poisson_binom(np.asarray(chances)).cdf(np.arange(len(chances) + 1))
+
+
 def efficient_count_range(chances: list[float], level: float = 0.9) -> tuple[int, int]:
-    """The central ``level`` range of the number of episodes an efficient estimator ends within the target, each
-    episode on its own with its chance in ``chances`` (a Poisson-binomial count): how far a share over this many
-    episodes moves by luck alone, with no change in the estimator's quality."""
+    """The central ``level`` range of that count (:func:`_count_cdf`): how far a share over this many episodes moves
+    by luck alone, with no change in the estimator's quality."""
     tail = (1.0 - level) / 2.0
-    # From the cdf: SciPy 1.17's poisson_binom.ppf fails beyond about 60 episodes (a ufunc's operand limit).
-    cdf = poisson_binom(np.asarray(chances)).cdf(np.arange(len(chances) + 1))
+    cdf = _count_cdf(chances)
     low, high = np.searchsorted(cdf, np.array([tail, 1.0 - tail]) - 1e-12)  # the first count whose cdf reaches each
     return int(low), int(high)
 
@@ -144,7 +149,7 @@ def efficient_count_range(chances: list[float], level: float = 0.9) -> tuple[int
 def as_few_chance(chances: list[float], count: int) -> float:
     """The chance that an efficient estimator (its episodes' ``chances``) ends within the target in ``count`` episodes
     or fewer: a tracker's count with a small chance here falls short of the bound; with a fair one, by luck."""
-    return float(poisson_binom(np.asarray(chances)).cdf(count))
+    return float(_count_cdf(chances)[count])
 
 
 def episode_covariance(env: AASLEnv, seed: int, model: str = "direct") -> np.ndarray:
