@@ -20,6 +20,7 @@ import numpy as np
 import yaml
 
 from aasl_gym.facility import loop_radius, pod_hydrophones
+from aasl_gym.io import read_yaml
 
 SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "uturn", "mixed")
 MEASUREMENT_MODES = ("signal", "geometric")
@@ -821,7 +822,7 @@ def read_config_file(
     if not path.is_file():
         raise ConfigError(f"config file {str(path)!r} does not exist")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = read_yaml(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
     data = {} if data is None else data

@@ -1,13 +1,17 @@
-"""Atomic file writes: write to a temporary file in the same folder, then rename over the target."""
+"""File input and output: atomic writes (write to a temporary file in the same folder, then rename over the
+target) and YAML reading with the exponent floats researchers write (``1e-7``)."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+import yaml
 
 
 def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
@@ -32,3 +36,21 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
 
 def atomic_write_json(path: str | Path, data: Any) -> Path:
     return atomic_write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader, which follows YAML 1.1 and so reads ``1e-7`` or ``3e-4`` (no dot, or no sign in the
+    exponent) as strings; YAML 1.2 and every other reader take them for numbers, and so does this one."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$"),
+    list("-+.0123456789"),
+)
+
+
+def read_yaml(text: str) -> Any:
+    """The plain values of a YAML document (safe loading: no Python objects), ``1e-7`` a float; raises
+    ``yaml.YAMLError`` where it is not valid YAML."""
+    return yaml.load(text, Loader=_Loader)  # a SafeLoader: plain values only

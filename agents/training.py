@@ -17,6 +17,7 @@ from typing import Any
 import yaml
 
 from aasl_gym.config import ConfigError, build_section, require, require_choice, to_dict
+from aasl_gym.io import read_yaml
 from aasl_gym.registration import ENV_IDS
 
 ALGORITHMS = ("ppo", "sac", "td3", "a2c", "recurrent-ppo")
@@ -79,7 +80,7 @@ def load_training(path: str | Path, algo: str) -> tuple[Schedule, dict[str, Any]
     if not path.is_file():
         raise ConfigError(f"no file at {path}")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = read_yaml(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path} is not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or "schedule" not in data or algo not in data:

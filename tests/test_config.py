@@ -85,6 +85,25 @@ def test_bad_values_are_named(data, match):
         from_dict(data)
 
 
+def test_exponent_floats_read_as_numbers(tmp_path):
+    """YAML 1.2's floats without a dot or an exponent sign (``1e-7``), which PyYAML alone reads as strings, load
+    as numbers; quoted, they stay strings and are refused by name; YAML 1.1's forms and other scalars keep their
+    types."""
+    from aasl_gym.io import read_yaml
+
+    path = tmp_path / "exponent.yaml"
+    path.write_text("filter:\n  acceleration_psd: 1e-7\n  jerk_psd: 2.5E+3\n  turn_rate_psd: .5e-2\n")
+    config = load_config(path)
+    assert (config.filter.acceleration_psd, config.filter.jerk_psd, config.filter.turn_rate_psd) == (1e-7, 2500.0, 5e-3)
+    path.write_text("filter:\n  acceleration_psd: '1e-7'\n")
+    with pytest.raises(ConfigError, match=r"filter\.acceleration_psd: must be a number, got '1e-7'"):
+        load_config(path)
+    values = read_yaml("[1e5, -3e-4, 1.0e-05, 7, 0x1F, 1e, e5, 1e-7x, 2026-11-28, .inf, yes]")
+    assert values[:5] == [1e5, -3e-4, 1e-5, 7, 31] and isinstance(values[0], float)
+    assert values[5:8] == ["1e", "e5", "1e-7x"] and str(values[8]) == "2026-11-28"
+    assert values[9] == float("inf") and values[10] is True
+
+
 def test_bad_yaml_file_names_the_file(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("world: {water_depth: [unclosed\n")

@@ -301,6 +301,9 @@ def test_the_schedule_is_validated_with_the_key_named(tmp_path):
             load_training(tmp_path / "h.yaml", "ppo")
     with pytest.raises(ConfigError, match="no file"):
         load_training(tmp_path / "none.yaml", "ppo")
+    # A learning rate written as rl-zoo3's files write it without their !!float tag is a number, not a string.
+    (tmp_path / "h.yaml").write_text(yaml.safe_dump(TINY_SCHEDULE) + "ppo: {learning_rate: 3e-4}\n")
+    assert load_training(tmp_path / "h.yaml", "ppo")[1] == {"learning_rate": 3e-4}
     # The record keeps the file's schedule and, beside it, what the command line changed.
     run = tiny.replace(timesteps=512, env="AASL-Greedy-v0", n_envs=None)
     assert run.n_envs == tiny.n_envs
