@@ -40,7 +40,7 @@ def atomic_write_json(path: str | Path, data: Any) -> Path:
 
 class _Loader(yaml.SafeLoader):
     """PyYAML's safe loader, which follows YAML 1.1 and so reads ``1e-7`` or ``3e-4`` (no dot, or no sign in the
-    exponent) as strings; YAML 1.2 and every other reader take them for numbers, and so does this one."""
+    exponent) as strings; YAML 1.2 takes them for numbers, and so does this loader."""
 
 
 _Loader.add_implicit_resolver(
