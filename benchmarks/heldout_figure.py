@@ -62,16 +62,18 @@ def figure(root: Path) -> Figure:
     axes = fig.subplots(1, len(MOTIONS), sharey=False)
     width = 0.26
     for ax, motion in zip(axes, MOTIONS):
-        for i, (name, seeds) in enumerate(SETS.items()):
+        for i, name in enumerate(SETS):
             folder = root / name
             tracked = tracker_success(folder).get(motion, np.nan)
             bound = bound_rows(folder).get(motion, {})
-            ax.bar(i - width, tracked, width, color="tab:blue", label="tracker" if i == 0 else None)
-            ax.bar(i, bound.get("map", np.nan), width, color="tab:orange", label="exact MAP (from the truth)" if i == 0 else None)
+            first = i == 0  # one legend entry per kind of bar
+            ax.bar(i - width, tracked, width, color="tab:blue", label="tracker" if first else None)
+            exact = bound.get("map", np.nan)
+            ax.bar(i, exact, width, color="tab:orange", label="exact MAP (from the truth)" if first else None)
             if bound:
                 error = [[bound["efficient"] - bound["low"]], [bound["high"] - bound["efficient"]]]
                 ax.bar(i + width, bound["efficient"], width, yerr=error, color="tab:gray", capsize=3,
-                       label="efficient estimator (90 % range)" if i == 0 else None)  # fmt: skip
+                       label="efficient estimator (90 % range)" if first else None)  # fmt: skip
         ax.axhline(BARS[motion], color="k", linestyle="--", linewidth=1, label="issue's bar")
         ax.set_xticks(range(len(SETS)), [seeds.split("-")[0] for seeds in SETS.values()])
         ax.set_title(motion.upper() if motion != "static" else "static")

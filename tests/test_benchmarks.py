@@ -8,6 +8,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from crb_bound import as_few_chance, efficient_count_range
+from heldout_figure import bound_rows
 
 
 def test_an_efficient_estimators_count_range_is_the_coin_flips():
@@ -30,3 +31,20 @@ def test_the_count_range_and_the_chance_of_as_few_match_a_monte_carlo():
     assert np.mean(counts < low) <= 0.05 and np.mean(counts > high) <= 0.05
     for count in (low, int(np.median(counts)), high):
         assert abs(as_few_chance(list(chances), count) - np.mean(counts <= count)) < 0.01
+
+
+def test_the_heldout_figure_reads_the_bound_tables_at_one_metre(tmp_path):
+    """A crb_bound.md with a 1 m table without and one with the tracker and oracle columns, then a 0.5 m table: the
+    figure takes the last 1 m table's efficient estimator (share and range) and the MAP's share where it has one."""
+    header = "| motion | episodes | bound < {t} m to the end | first time | efficient | its count, 90 % range |"
+    tables = [
+        header.format(t="1.0"), "|---|---|---|---|---|---|", "| cv | 100 | 96% | 23.5 | 95% | 92-98 |",
+        "| static | 100 | 100% | 20.3 | 100% | 100-100 |", "",
+        header.format(t="1.0") + " tracker | chance | ratio | MAP |", "|---|---|---|---|---|---|---|---|---|---|",
+        "| cv | 100 | 96% | 23.5 | 94% | 91-97 | 93% | 32% | 0.72 | 97% |", "",
+        header.format(t="0.5"), "|---|---|---|---|---|---|", "| cv | 100 | 78% | 38.5 | 84% | 79-89 |",
+    ]  # fmt: skip
+    (tmp_path / "crb_bound.md").write_text("Some prose.\n\n" + "\n".join(tables) + "\n")
+    rows = bound_rows(tmp_path)
+    assert rows["cv"] == {"efficient": 94.0, "low": 91.0, "high": 97.0, "map": 97.0}
+    assert rows["static"] == {"efficient": 100.0, "low": 100.0, "high": 100.0}
