@@ -58,16 +58,17 @@ def bound_rows(folder: Path) -> dict[str, dict[str, float]]:
 
 
 def figure(root: Path) -> Figure:
+    """One panel per motion: per held-out set under ``root``, the tracker's, the exact MAP's and an efficient
+    estimator's success at ``TARGET``, and the issue's bar."""
+    sets = [(tracker_success(root / name), bound_rows(root / name)) for name in SETS]
     fig = Figure(figsize=(12, 3.4))
     axes = fig.subplots(1, len(MOTIONS), sharey=False)
     width = 0.26
     for ax, motion in zip(axes, MOTIONS):
-        for i, name in enumerate(SETS):
-            folder = root / name
-            tracked = tracker_success(folder).get(motion, np.nan)
-            bound = bound_rows(folder).get(motion, {})
+        for i, (tracker, bounds) in enumerate(sets):
+            bound = bounds.get(motion, {})
             first = i == 0  # one legend entry per kind of bar
-            ax.bar(i - width, tracked, width, color="tab:blue", label="tracker" if first else None)
+            ax.bar(i - width, tracker.get(motion, np.nan), width, color="tab:blue", label="tracker" if first else None)
             exact = bound.get("map", np.nan)
             ax.bar(i, exact, width, color="tab:orange", label="exact MAP (from the truth)" if first else None)
             if bound:
