@@ -79,11 +79,11 @@ class InformationTracker:
 
     def step(self, dt: float, jacobian: np.ndarray | None, noise: np.ndarray) -> float:
         """Propagate one step, add one measurement's information (none if ``jacobian`` is None: the
-        frame was lost); returns the new ``fim_logdet``."""
-        predicted = self.predicted(dt)
-        self.covariance = predicted if jacobian is None else updated_covariance(predicted, jacobian, noise)
-        self.covariance = 0.5 * (self.covariance + self.covariance.T)
-        return float(position_information_logdet(self.covariance))
+        frame was lost); returns the new ``fim_logdet``. Compiled (:func:`aasl_gym.kernels.information_step`):
+        :meth:`predicted`, :func:`updated_covariance` and :func:`position_information_logdet` as NumPy calls
+        took 30 us a step, 3 % of a free-field step."""
+        self.covariance, logdet = kernels.information_step(self.covariance, dt, self.process_noise, jacobian, noise)
+        return logdet
 
     @property
     def logdet(self) -> float:

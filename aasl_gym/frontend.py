@@ -202,6 +202,15 @@ def _window_delays(
     return delays, np.abs(correlation) / energy, centres
 
 
+@functools.lru_cache(maxsize=16)
+def _window_edges(count: int, windows: int) -> np.ndarray:
+    """The first sample of each of ``windows`` equal windows of ``count`` samples, then ``count`` (read-only): every
+    frame of a run shares them."""
+    edges = np.linspace(0, count, windows + 1).astype(int)
+    edges.setflags(write=False)
+    return edges
+
+
 @dataclass(frozen=True)
 class DelayTrack:
     """Per-window delays of one frame: what the correlation stage hands to the TDOA / FDOA stage."""
@@ -226,8 +235,9 @@ def delay_track(
         else noise_lag_product(noise_level_db, waveform.band, waveform.carrier, envelope.rate)
     )
     lag = 0 if tone else coarse_lag(envelope, int(np.ceil(max_delay * envelope.rate)))
-    edges = np.linspace(0, len(envelope.times), windows + 1).astype(int)
-    delays, coherences, times = _window_delays(envelope, edges, lag, tone, noise_lag)
+    delays, coherences, times = _window_delays(
+        envelope, _window_edges(len(envelope.times), windows), lag, tone, noise_lag
+    )
     if tone:  # each window's delay is known modulo one period: keep the track continuous across windows
         period = 1.0 / waveform.frequency
         delays = geometry.unwrap_to_period(delays, period)

@@ -1400,3 +1400,67 @@ def sigma_moments(
         np.ascontiguousarray(noise, dtype=float), means, covariances,
     )  # fmt: skip
     return means, covariances
+
+
+@_compile
+def _information_step(covariance, dt, process_noise, jacobian, noise, measured):
+    """:func:`information_step` in place on ``covariance`` (8, 8); returns -log det of its position block."""
+    dim = covariance.shape[0]
+    moved = np.empty((dim, dim))  # F P: the positions take dt times the velocities' rows
+    for i in range(dim):
+        for j in range(dim):
+            moved[i, j] = covariance[i, j] + dt * covariance[i + 3, j] if i < 3 else covariance[i, j]
+    for i in range(dim):  # (F P) F^T + Q
+        for j in range(dim):
+            value = moved[i, j] + dt * moved[i, j + 3] if j < 3 else moved[i, j]
+            covariance[i, j] = value + process_noise[i, j]
+    if measured:
+        gain = np.empty((dim, 2))  # P H^T
+        for i in range(dim):
+            for r in range(2):
+                total = 0.0
+                for j in range(dim):
+                    total += covariance[i, j] * jacobian[r, j]
+                gain[i, r] = total
+        s00, s01, s10, s11 = noise[0, 0], noise[0, 1], noise[1, 0], noise[1, 1]
+        for j in range(dim):
+            s00 += jacobian[0, j] * gain[j, 0]
+            s01 += jacobian[0, j] * gain[j, 1]
+            s10 += jacobian[1, j] * gain[j, 0]
+            s11 += jacobian[1, j] * gain[j, 1]
+        determinant = s00 * s11 - s01 * s10
+        i00, i01, i10, i11 = s11 / determinant, -s01 / determinant, -s10 / determinant, s00 / determinant
+        for i in range(dim):
+            a = gain[i, 0] * i00 + gain[i, 1] * i10  # (P H^T S^-1)[i]
+            b = gain[i, 0] * i01 + gain[i, 1] * i11
+            for j in range(dim):
+                covariance[i, j] -= a * gain[j, 0] + b * gain[j, 1]
+    for i in range(dim):
+        for j in range(i + 1, dim):
+            covariance[i, j] = covariance[j, i] = 0.5 * (covariance[i, j] + covariance[j, i])
+    p = covariance
+    determinant = (
+        p[0, 0] * (p[1, 1] * p[2, 2] - p[1, 2] * p[2, 1])
+        - p[0, 1] * (p[1, 0] * p[2, 2] - p[1, 2] * p[2, 0])
+        + p[0, 2] * (p[1, 0] * p[2, 1] - p[1, 1] * p[2, 0])
+    )
+    return -math.log(determinant) if determinant > 0 else math.inf
+
+
+def information_step(
+    covariance: np.ndarray, dt: float, process_noise: np.ndarray, jacobian: np.ndarray | None, noise: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """One step of the Fisher information's EKF-form recursion on [p, v, b_p, b_v] (:mod:`aasl_gym.fisher`):
+    ``covariance`` (8, 8) predicted ``dt`` seconds under constant velocity with ``process_noise`` Q, updated with a
+    measurement's ``jacobian`` H (2, 8) and ``noise`` R (2, 2) unless H is None (a lost frame), made symmetric;
+    returns the new covariance and -log det of its position block (inf where that is not positive definite). The
+    same as :func:`aasl_gym.fisher.updated_covariance` and :func:`aasl_gym.fisher.position_information_logdet`
+    after F P F^T + Q, to rounding (``tests/test_fisher.py``), at a tenth of their NumPy calls' cost a step."""
+    updated = np.array(covariance, dtype=float)
+    measured = jacobian is not None
+    rows = np.zeros((2, 8)) if jacobian is None else np.ascontiguousarray(jacobian, dtype=float)
+    logdet = _information_step(
+        updated, float(dt), np.ascontiguousarray(process_noise, dtype=float), rows,
+        np.ascontiguousarray(noise, dtype=float), measured,
+    )  # fmt: skip
+    return updated, logdet

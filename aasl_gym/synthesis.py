@@ -159,8 +159,16 @@ def clipped(samples: np.ndarray, level: float) -> np.ndarray:
 
 def frame_times(centre: float, duration: float, rate: float) -> np.ndarray:
     """Sample times (s) of a frame of ``duration`` s centred on ``centre``."""
-    count = int(round(duration * rate))
-    return centre + (np.arange(count) - 0.5 * (count - 1)) / rate
+    return centre + _frame_offsets(int(round(duration * rate)), rate)
+
+
+@functools.lru_cache(maxsize=16)
+def _frame_offsets(count: int, rate: float) -> np.ndarray:
+    """Times (s) of a frame's ``count`` samples at ``rate`` Hz from its centre (read-only): every frame of a run
+    shares them."""
+    offsets = (np.arange(count) - 0.5 * (count - 1)) / rate
+    offsets.setflags(write=False)
+    return offsets
 
 
 def path_sources(

@@ -4,6 +4,7 @@ Kalman filter's covariance, and a lost frame."""
 import numpy as np
 import pytest
 
+from aasl_gym import kernels
 from aasl_gym.config import EnvConfig
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.fisher import (
@@ -76,3 +77,20 @@ def test_the_tracker_is_a_kalman_filter_covariance_and_a_lost_frame_only_predict
     tracker.step(0.2, None, noise)
     np.testing.assert_allclose(tracker.covariance, f @ before @ f.T + process_noise)
     assert position_information_logdet(tracker.covariance) < position_information_logdet(before)
+
+
+def test_the_compiled_step_is_the_numpy_forms(rng):
+    """kernels.information_step against F P F^T + Q, updated_covariance and position_information_logdet (a second
+    implementation), with a measurement and without; a position block that is not positive definite gives inf."""
+    root = rng.normal(size=(8, 8))
+    covariance = root @ root.T + np.eye(8)
+    process_noise = ConstantVelocity(EnvConfig().filter).process_noise(0.2)
+    jacobian, noise = rng.normal(size=(2, 8)), np.array([[0.003, 0.001], [0.001, 0.002]])
+    f = cv_transition_matrix(0.2)
+    predicted = f @ covariance @ f.T + process_noise
+    for measured, expected in ((jacobian, updated_covariance(predicted, jacobian, noise)), (None, predicted)):
+        updated, logdet = kernels.information_step(covariance, 0.2, process_noise, measured, noise)
+        np.testing.assert_allclose(updated, 0.5 * (expected + expected.T), rtol=1e-10, atol=1e-13)
+        assert logdet == pytest.approx(position_information_logdet(expected), rel=1e-10)
+    singular = np.diag([1.0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    assert kernels.information_step(singular, 0.0, np.zeros((8, 8)), None, noise)[1] == np.inf
