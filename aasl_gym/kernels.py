@@ -1402,49 +1402,63 @@ def sigma_moments(
     return means, covariances
 
 
-@_compile
-def _information_step(covariance, dt, process_noise, jacobian, noise, measured):
-    """:func:`information_step` in place on ``covariance`` (8, 8); returns -log det of its position block."""
+@numba.njit(inline="always", error_model="numpy")
+def _information_update(covariance, dt, process_noise, jacobian, noise, measured, moved, gain):
+    """One step of the Fisher information's recursion in place on ``covariance`` (8, 8): F P F^T + Q under constant
+    velocity, then, if ``measured``, P - P H^T (H P H^T + R)^-1 H P; ``moved`` (8, 8) and ``gain`` (8, 2) scratch."""
     dim = covariance.shape[0]
-    moved = np.empty((dim, dim))  # F P: the positions take dt times the velocities' rows
-    for i in range(dim):
+    for i in range(dim):  # F P: the positions take dt times the velocities' rows
         for j in range(dim):
             moved[i, j] = covariance[i, j] + dt * covariance[i + 3, j] if i < 3 else covariance[i, j]
     for i in range(dim):  # (F P) F^T + Q
         for j in range(dim):
             value = moved[i, j] + dt * moved[i, j + 3] if j < 3 else moved[i, j]
             covariance[i, j] = value + process_noise[i, j]
-    if measured:
-        gain = np.empty((dim, 2))  # P H^T
-        for i in range(dim):
-            for r in range(2):
-                total = 0.0
-                for j in range(dim):
-                    total += covariance[i, j] * jacobian[r, j]
-                gain[i, r] = total
-        s00, s01, s10, s11 = noise[0, 0], noise[0, 1], noise[1, 0], noise[1, 1]
-        for j in range(dim):
-            s00 += jacobian[0, j] * gain[j, 0]
-            s01 += jacobian[0, j] * gain[j, 1]
-            s10 += jacobian[1, j] * gain[j, 0]
-            s11 += jacobian[1, j] * gain[j, 1]
-        determinant = s00 * s11 - s01 * s10
-        i00, i01, i10, i11 = s11 / determinant, -s01 / determinant, -s10 / determinant, s00 / determinant
-        for i in range(dim):
-            a = gain[i, 0] * i00 + gain[i, 1] * i10  # (P H^T S^-1)[i]
-            b = gain[i, 0] * i01 + gain[i, 1] * i11
+    if not measured:
+        return
+    for i in range(dim):  # P H^T
+        for r in range(2):
+            total = 0.0
             for j in range(dim):
-                covariance[i, j] -= a * gain[j, 0] + b * gain[j, 1]
+                total += covariance[i, j] * jacobian[r, j]
+            gain[i, r] = total
+    s00, s01, s10, s11 = noise[0, 0], noise[0, 1], noise[1, 0], noise[1, 1]
+    for j in range(dim):
+        s00 += jacobian[0, j] * gain[j, 0]
+        s01 += jacobian[0, j] * gain[j, 1]
+        s10 += jacobian[1, j] * gain[j, 0]
+        s11 += jacobian[1, j] * gain[j, 1]
+    determinant = s00 * s11 - s01 * s10
+    i00, i01, i10, i11 = s11 / determinant, -s01 / determinant, -s10 / determinant, s00 / determinant
     for i in range(dim):
-        for j in range(i + 1, dim):
-            covariance[i, j] = covariance[j, i] = 0.5 * (covariance[i, j] + covariance[j, i])
-    p = covariance
+        a = gain[i, 0] * i00 + gain[i, 1] * i10  # (P H^T S^-1)[i]
+        b = gain[i, 0] * i01 + gain[i, 1] * i11
+        for j in range(dim):
+            covariance[i, j] -= a * gain[j, 0] + b * gain[j, 1]
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _position_logdet(p):
+    """-log det of the position block p[:3, :3] (inf where it is not positive)."""
     determinant = (
         p[0, 0] * (p[1, 1] * p[2, 2] - p[1, 2] * p[2, 1])
         - p[0, 1] * (p[1, 0] * p[2, 2] - p[1, 2] * p[2, 0])
         + p[0, 2] * (p[1, 0] * p[2, 1] - p[1, 1] * p[2, 0])
     )
     return -math.log(determinant) if determinant > 0 else math.inf
+
+
+@_compile
+def _information_step(covariance, dt, process_noise, jacobian, noise, measured):
+    """:func:`information_step` in place on ``covariance`` (8, 8); returns -log det of its position block."""
+    dim = covariance.shape[0]
+    _information_update(
+        covariance, dt, process_noise, jacobian, noise, measured, np.empty((dim, dim)), np.empty((dim, 2))
+    )
+    for i in range(dim):
+        for j in range(i + 1, dim):
+            covariance[i, j] = covariance[j, i] = 0.5 * (covariance[i, j] + covariance[j, i])
+    return _position_logdet(covariance)
 
 
 def information_step(
@@ -1455,7 +1469,7 @@ def information_step(
     measurement's ``jacobian`` H (2, 8) and ``noise`` R (2, 2) unless H is None (a lost frame), made symmetric;
     returns the new covariance and -log det of its position block (inf where that is not positive definite). The
     same as :func:`aasl_gym.fisher.updated_covariance` and :func:`aasl_gym.fisher.position_information_logdet`
-    after F P F^T + Q, to rounding (``tests/test_fisher.py``), at a tenth of their NumPy calls' cost a step."""
+    after F P F^T + Q, to rounding (``tests/test_fisher.py``), at a twentieth of their NumPy calls' cost a step."""
     updated = np.array(covariance, dtype=float)
     measured = jacobian is not None
     rows = np.zeros((2, 8)) if jacobian is None else np.ascontiguousarray(jacobian, dtype=float)
@@ -1464,3 +1478,30 @@ def information_step(
         np.ascontiguousarray(noise, dtype=float), measured,
     )  # fmt: skip
     return updated, logdet
+
+
+@_compile
+def _horizon_information(covariance, dt, process_noise, jacobians, noises, out):
+    """:func:`horizon_information` into ``out`` (C,)."""
+    dim = covariance.shape[0]
+    current, moved, gain = np.empty((dim, dim)), np.empty((dim, dim)), np.empty((dim, 2))
+    for c in range(jacobians.shape[0]):
+        current[:, :] = covariance
+        for k in range(jacobians.shape[1]):
+            _information_update(current, dt, process_noise, jacobians[c, k], noises[c, k], True, moved, gain)
+        out[c] = _position_logdet(current)
+
+
+def horizon_information(
+    covariance: np.ndarray, dt: float, process_noise: np.ndarray, jacobians: np.ndarray, noises: np.ndarray
+) -> np.ndarray:
+    """-log det of the position information (nats) after each of C paths of S steps from ``covariance`` (8, 8): at
+    every step the prediction of :func:`information_step` and the update with that path's ``jacobians`` (C, S, 2, 8)
+    and ``noises`` (C, S, 2, 2), not symmetrized between steps (the greedy planner's recursion,
+    :meth:`aasl_gym.planning.GreedyPlanner.scores`); the same as its NumPy form to rounding, a tenth of its cost."""
+    out = np.empty(len(jacobians))
+    _horizon_information(
+        np.ascontiguousarray(covariance, dtype=float), float(dt), np.ascontiguousarray(process_noise, dtype=float),
+        np.ascontiguousarray(jacobians, dtype=float), np.ascontiguousarray(noises, dtype=float), out,
+    )  # fmt: skip
+    return out

@@ -10,6 +10,9 @@ costs); >= 5,000 steps/s in geometric mode (issue 2). filterpy's UKF on the same
 beside ours, so the ratio holds however fast the machine is; ``--signal-only`` prints filterpy's time alone, as the
 machine's reference (a NumPy-bound step: 0.39 ms on the machine of sessions 32-35, 0.55 ms on session 36's).
 
+``--greedy`` adds AASL-Greedy-v0 in the default world, the env the shipped policy trains on (its information-greedy
+planner scores 27 commands every step; no bar).
+
 ``--floor`` adds the paper's single filter (one hypothesis, no re-seeding, LC-MAP re-starts only) in each
 world: what a step costs before the tracker's bank, re-seeding, searches and track checks - the front
 end, one unscented filter with the world's model, the reward's Fisher information and the env itself.
@@ -107,6 +110,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=10, help="episodes per env timing (seeds 0 onward)")
     parser.add_argument("--signal-only", action="store_true", help="only the signal-mode whole-episode timings")
     parser.add_argument("--floor", action="store_true", help="also the paper's single filter, without re-seeding")
+    parser.add_argument("--greedy", action="store_true", help="also AASL-Greedy-v0, the training env (no bar)")
     args = parser.parse_args()
     worlds = [
         ("default world (reflections, phasor filter)", dict(source_motion="cv")),
@@ -115,15 +119,16 @@ def main() -> None:
     if args.floor:
         single = {"initializer": {"hypotheses": 1, "reseed_interval": 0.0}}
         worlds += [(f"{label}, the paper's single filter", dict(kwargs, config=single)) for label, kwargs in worlds]
+    runs = [("AASL-Helix-v0", label, kwargs, "   [goal >= 1,000 whole]") for label, kwargs in worlds]
+    if args.greedy:
+        runs.append(("AASL-Greedy-v0", "default world, the greedy planner's env", dict(source_motion="cv"), ""))
     warm_up()
-    for label, kwargs in worlds:
-        rates = [
-            env_step_rates("AASL-Helix-v0", args.episodes, measurement="signal", **kwargs) for _ in range(args.repeats)
-        ]
+    for env_id, label, kwargs, goal in runs:
+        rates = [env_step_rates(env_id, args.episodes, measurement="signal", **kwargs) for _ in range(args.repeats)]
         whole, typical = (statistics.median(column) for column in zip(*rates))
         print(
             f"env steps/s, signal mode, cv source, {label}: whole episodes {whole:,.0f} "
-            f"(typical step {typical:,.0f})   [goal >= 1,000 whole]"
+            f"(typical step {typical:,.0f}){goal}"
         )
     reference = statistics.median(time_filterpy(500) for _ in range(args.repeats))
     if args.signal_only:
