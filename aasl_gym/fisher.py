@@ -73,15 +73,11 @@ class InformationTracker:
     def reset(self, covariance: np.ndarray) -> None:
         self.covariance = np.array(covariance, dtype=float)
 
-    def predicted(self, dt: float) -> np.ndarray:
-        f = cv_transition_matrix(dt)
-        return f @ self.covariance @ f.T + self.process_noise
-
     def step(self, dt: float, jacobian: np.ndarray | None, noise: np.ndarray) -> float:
         """Propagate one step, add one measurement's information (none if ``jacobian`` is None: the
         frame was lost); returns the new ``fim_logdet``. Compiled (:func:`aasl_gym.kernels.information_step`):
-        :meth:`predicted`, :func:`updated_covariance` and :func:`position_information_logdet` as NumPy calls
-        took 30 us a step, 3 % of a free-field step."""
+        F P F^T + Q, :func:`updated_covariance` and :func:`position_information_logdet` as NumPy calls took 30 us a
+        step, 3 % of a free-field step."""
         self.covariance, logdet = kernels.information_step(self.covariance, dt, self.process_noise, jacobian, noise)
         return logdet
 

@@ -41,8 +41,9 @@ The direct path runs in the same pass (:func:`_direct`: the values and both Jaco
 fits from one start on (session 32: a lone start runs unpadded), and in one pass over LC-MAP's grid
 (:func:`lcmap_grid`: a thousand candidates or more along twenty samples, each one's velocity solve and score in
 cache; 26 -> 9 ms an LC-MAP run). The unscented filters' sigma points, moments and update (:func:`sigma_points`,
-:func:`sigma_moments`, :func:`unscented_update`) and a channel's clipping count (:func:`peak_counts`) are compiled
-too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step.
+:func:`sigma_moments`, :func:`unscented_update`), a channel's clipping count (:func:`peak_counts`), the reward's
+Fisher information step (:func:`information_step`) and the greedy planner's horizon (:func:`horizon_information`)
+are compiled too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step.
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
 21 seconds, most of it the window fit's pass), later processes load it (about 0.15 s, at the first call).

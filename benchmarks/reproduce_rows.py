@@ -86,10 +86,7 @@ def rerun(task: tuple[dict, dict]) -> dict:
     from agents.study import run_episode
 
     config, entry = task
-    key = entry["key"]
-    if len(key) != 6:
-        raise ValueError(f"row {key} names a variant: only evaluate.py logs are taken")
-    policy, initializer, motion, measurement, seed, filter_model = key
+    policy, initializer, motion, measurement, seed, filter_model = entry["key"]
     record = "trajectory" in entry["row"]
     row = run_episode(Job(policy, initializer, motion, measurement, seed, config, filter_model, record))
     return json.loads(json.dumps(row))  # as the log holds it: tuples as lists, floats through repr
@@ -130,7 +127,13 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+        if any(len(entry["key"]) != 6 for entry in entries):
+            print(f"error: {path} holds rows of a paper.py study (keys with a variant): not taken", file=sys.stderr)
+            return 2
         entries = [entry for entry in entries if args.policies is None or entry["key"][0] in args.policies]
+        if not entries:
+            print(f"error: {path} holds no rows" + (f" of {args.policies}" if args.policies else ""), file=sys.stderr)
+            return 2
         tasks += [(path, config, entry) for entry in spread(entries, args.rows)]
     start, mismatched = time.perf_counter(), 0
     with Pool(args.workers) as pool:

@@ -39,14 +39,14 @@ def _comparable(platform: dict, keys: dict | None = None) -> dict:
     return kept
 
 
-@pytest.mark.parametrize("folder, rows, policy", STUDIES)
-def test_committed_rows_reproduce_on_the_platform_that_wrote_them(folder, rows, policy):
+@pytest.mark.parametrize("folder, source, policy", STUDIES)
+def test_committed_rows_reproduce_on_the_platform_that_wrote_them(folder, source, policy):
     """The study's first row of ``policy`` re-run: every field the same, or the checker exits 1."""
     committed = _comparable(json.loads((ROOT / folder / "results.json").read_text())["platform"])
     here = _comparable(_platform(), committed)
     if committed != here:
         pytest.skip(f"rows written on {committed}, this platform is {here}")
-    command = [sys.executable, "benchmarks/reproduce_rows.py", f"{folder}/{rows}", "--policies", policy]
+    command = [sys.executable, "benchmarks/reproduce_rows.py", f"{folder}/{source}", "--policies", policy]
     done = subprocess.run(
         [*command, "--rows", "1", "--workers", "1"], env=_environment(), capture_output=True, text=True, cwd=ROOT
     )
