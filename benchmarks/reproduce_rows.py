@@ -1,7 +1,8 @@
-"""Whether committed study rows still reproduce to the last bit: re-runs some episodes of an ``evaluate.py`` study
-- its log (``episodes.jsonl``: its config line, then one row per episode) or, where no log was committed, its
-``results.json`` (the config, the command and the rows) - with the code as it is, and compares each row with the
-committed one, field by field.
+"""Whether committed study rows still reproduce to the last bit: re-runs some episodes of a study - its log
+(``episodes.jsonl``: its config line, then one row per episode; ``evaluate.py``'s or ``paper.py``'s) or, where no log
+was committed, an ``evaluate.py`` study's ``results.json`` (the config, the command and the rows) - with the code as
+it is, and compares each row with the committed one, field by field (but the wall-clock timings ``ms_mean`` and
+``ms_median`` of the fixed-array study).
 
     OPENBLAS_CORETYPE=Haswell python benchmarks/reproduce_rows.py reports/tracker/heldout_free/episodes.jsonl
         reports/patrol/default_world/results.json [--rows 8] [--workers 2]
@@ -10,7 +11,8 @@ committed one, field by field.
 0`` takes them all. Exits 1 if any row differs. A refactoring must change none (the project's rule); a change meant to
 alter results re-runs the studies instead. The committed rows were written with OpenBLAS's Haswell kernels and one
 thread: on a machine with AVX-512, other kernels round differently from about the 12th digit, hence the variable.
-Logs of ``paper.py``'s studies (rows with a variant) are not taken: their configs are the variants'.
+A ``paper.py`` log holds its study's scenario config and its variants' changes; a row names its variant, which the
+study as ``paper.py`` makes it (its coefficient grid and drift read from the log) maps to those changes.
 """
 
 from __future__ import annotations
@@ -22,9 +24,12 @@ import sys
 import time
 from multiprocessing import Pool
 from pathlib import Path
+from typing import Any
 
 for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
+
+TIMINGS = {"ms_mean", "ms_median"}  # wall-clock fields of a row: never the same twice
 
 
 def read_log(path: Path) -> tuple[dict, list[dict]]:
@@ -79,17 +84,49 @@ def spread(entries: list[dict], count: int) -> list[dict]:
     return [entries[round(i * (len(entries) - 1) / (count - 1))] for i in range(count)]
 
 
-def rerun(task: tuple[dict, dict]) -> dict:
-    """The row the logged ``entry``'s episode gives now, under the log's ``config`` (its paths kept where the logged
-    row kept them, for the trajectory plots)."""
+def jobs_of(config: dict, entries: list[dict]) -> list[tuple[Any, str]]:
+    """Each entry's job and how a study runs it (``episode``, a paper study's ``trial`` or ``array`` trial): under the
+    log's ``config`` for an ``evaluate.py`` log, under its variant's for a ``paper.py`` one (whose config line is the
+    study's header). Paths are kept where the committed row kept them, for the trajectory plots."""
+    from aasl_gym.config import from_dict, merge, to_dict
     from aasl_gym.study.jobs import Job
-    from agents.study import run_episode
 
-    config, entry = task
-    policy, initializer, motion, measurement, seed, filter_model = entry["key"]
-    record = "trajectory" in entry["row"]
-    row = run_episode(Job(policy, initializer, motion, measurement, seed, config, filter_model, record))
-    return json.loads(json.dumps(row))  # as the log holds it: tuples as lists, floats through repr
+    variants = paper_variants(config) if "variants" in config and "base" in config else None
+    jobs = []
+    for entry in entries:
+        key, record = entry["key"], "trajectory" in entry["row"]
+        if variants is None:
+            jobs.append((Job(*key[:5], config, key[5], record), "episode"))
+            continue
+        if len(key) != 7 or key[6] not in variants:
+            raise ValueError(f"row {key} names no variant of the {config['study']} study")
+        data = to_dict(from_dict(merge(config["base"], variants[key[6]])))
+        jobs.append((Job(*key[:5], data, key[5], record, key[6]), "array" if config["study"] == "arrays" else "trial"))
+    return jobs
+
+
+def paper_variants(header: dict) -> dict[str, dict]:
+    """A ``paper.py`` log's variants by name: their changes, as the study ``paper.py`` makes holds them (the coefficient
+    grid's size and the navigation drift tried until the changes are the log's)."""
+    from aasl_gym.study.paper import make_study
+
+    written = header["variants"]
+    drifts = {(changes.get("receiver") or {}).get("nav_drift_sd") or 0.0 for changes in written}
+    for grid in range(1, 21):
+        for drift in sorted(drifts | {0.0}):
+            study = make_study(header["study"], grid=grid, drift=drift)
+            if json.loads(json.dumps([variant.changes for variant in study.variants])) == written:
+                return {variant.name: variant.changes for variant in study.variants}
+    raise ValueError(f"the {header['study']} study's variants are none that paper.py makes (grid 1-20, its drifts)")
+
+
+def rerun(task: tuple[Any, str]) -> dict:
+    """The row ``job`` gives now, run as its study runs it (``kind``)."""
+    from agents.study import run_array_trial, run_episode, run_trial
+
+    job, kind = task
+    run = {"episode": run_episode, "trial": run_trial, "array": run_array_trial}[kind]
+    return json.loads(json.dumps(run(job)))  # as the log holds it: tuples as lists, floats through repr
 
 
 def differences(logged: dict, now: dict) -> list[str]:
@@ -97,6 +134,8 @@ def differences(logged: dict, now: dict) -> list[str]:
     found = []
     for name in sorted(set(logged) | set(now)):
         old, new = logged.get(name), now.get(name)
+        if name in TIMINGS:
+            continue
         if isinstance(old, dict) and isinstance(new, dict):
             found += [f"{name}.{field}" for field in differences(old, new)]
         elif old != new:
@@ -127,18 +166,21 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        if any(len(entry["key"]) != 6 for entry in entries):
-            print(f"error: {path} holds rows of a paper.py study (keys with a variant): not taken", file=sys.stderr)
-            return 2
         entries = [entry for entry in entries if args.policies is None or entry["key"][0] in args.policies]
         if not entries:
             print(f"error: {path} holds no rows" + (f" of {args.policies}" if args.policies else ""), file=sys.stderr)
             return 2
-        tasks += [(path, config, entry) for entry in spread(entries, args.rows)]
+        entries = spread(entries, args.rows)
+        try:
+            jobs = jobs_of(config, entries)
+        except (ValueError, KeyError) as exc:
+            print(f"error: {path}: {exc}", file=sys.stderr)
+            return 2
+        tasks += [(path, entry, job) for entry, job in zip(entries, jobs)]
     start, mismatched = time.perf_counter(), 0
     with Pool(args.workers) as pool:
-        rows = pool.imap(rerun, [(config, entry) for _, config, entry in tasks])
-        for (path, _, entry), now in zip(tasks, rows):
+        rows = pool.imap(rerun, [job for _, _, job in tasks])
+        for (path, entry, _), now in zip(tasks, rows):
             found = differences(entry["row"], now)
             mismatched += bool(found)
             print(f"{'DIFFERS' if found else 'same   '} {path.parent.name} {entry['key']}")

@@ -1,5 +1,6 @@
 """The study scripts' own arithmetic (``benchmarks/``), against closed forms and a Monte Carlo."""
 
+import json
 import sys
 from pathlib import Path
 
@@ -9,6 +10,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from crb_bound import as_few_chance, efficient_count_range
 from heldout_figure import bound_rows
+from reproduce_rows import differences, paper_variants
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_an_efficient_estimators_count_range_is_the_coin_flips():
@@ -48,3 +52,15 @@ def test_the_heldout_figure_reads_the_bound_tables_at_one_metre(tmp_path):
     rows = bound_rows(tmp_path)
     assert rows["cv"] == {"efficient": 94.0, "low": 91.0, "high": 97.0, "map": 97.0}
     assert rows["static"] == {"efficient": 100.0, "low": 100.0, "high": 100.0}
+
+
+def test_the_reproduction_check_maps_a_paper_logs_variants_and_skips_timings():
+    """The coefficient study's log (a 6 x 6 grid, two worlds, two filters): its rows' variant names map to the changes
+    its config line holds, in order; a row's wall-clock fields are not compared, its other fields are."""
+    header = json.loads((ROOT / "reports/paper/coefficients/episodes.jsonl").read_text().splitlines()[0])["config"]
+    variants = paper_variants(header)
+    assert len(variants) == 144 and list(variants.values()) == header["variants"]
+    assert variants["phasor world, matched filter, a_surf -1, a_bed 0.2"]["world"]["bed_reflection"] == 0.2
+    logged, now = {"rmse": 1.0, "tracker": {"ms_mean": 0.3, "median_error": 2.0}}, {"rmse": 1.0}
+    now["tracker"] = {"ms_mean": 0.5, "median_error": 2.5}
+    assert differences(logged, now) == ["tracker.median_error: logged 2.0, now 2.5"]
