@@ -18,6 +18,7 @@ study as ``paper.py`` makes it (its coefficient grid and drift read from the log
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import sys
@@ -150,7 +151,9 @@ def _short(value, width: int = 60) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("logs", type=Path, nargs="+", help="episodes.jsonl of an evaluate.py study")
+    parser.add_argument(
+        "logs", type=Path, nargs="+", help="a study's episodes.jsonl (evaluate.py's, paper.py's) or results.json"
+    )
     parser.add_argument("--rows", type=int, default=8, help="rows per log, spread over it (0: all)")
     parser.add_argument("--policies", nargs="+", help="only these policies' rows (default: every policy's)")
     parser.add_argument("--workers", type=int, default=2, help="processes (default 2)")
@@ -175,6 +178,9 @@ def main(argv: list[str] | None = None) -> int:
             jobs = jobs_of(config, entries)
         except (ValueError, KeyError) as exc:
             print(f"error: {path}: {exc}", file=sys.stderr)
+            return 2
+        if any(kind == "array" for _, kind in jobs) and importlib.util.find_spec("cvxpy") is None:
+            print(f"error: {path}: the fixed-array study needs cvxpy: pip install -e '.[arrays]'", file=sys.stderr)
             return 2
         tasks += [(path, entry, job) for entry, job in zip(entries, jobs)]
     start, mismatched = time.perf_counter(), 0
