@@ -34,24 +34,21 @@ TIMINGS = {"ms_mean", "ms_median"}  # wall-clock fields of a row: never the same
 
 
 def read_log(path: Path) -> tuple[dict, list[dict]]:
-    """The log's config and its entries ({"key": [...], "row": {...}}); a torn last line is skipped, as a resume
-    skips it. A ``results.json`` gives its config and its rows, each keyed as the log would key it."""
+    """The log's config and its entries ({"key": [...], "row": {...}}), as a resume reads them
+    (:meth:`aasl_gym.study.log.EpisodeLog.read`: a torn last line skipped). A ``results.json`` gives its config and its
+    rows, each keyed as the log would key it."""
+    from aasl_gym.study.log import EpisodeLog
+
     if path.suffix == ".json":
         return read_results(path)
-    lines = path.read_text().splitlines()
-    if not lines:
-        raise ValueError(f"{path} is empty")
+    with open(path) as handle:
+        first = handle.readline()
     try:
-        config = json.loads(lines[0])["config"]
+        config = json.loads(first)["config"]
     except (KeyError, TypeError, json.JSONDecodeError):
         raise ValueError(f"{path} does not start with a config line (is it an evaluate.py log?)") from None
-    entries = []
-    for line in lines[1:]:
-        try:
-            entries.append(json.loads(line))
-        except json.JSONDecodeError:
-            continue
-    return config, entries
+    rows = EpisodeLog(path, config).read()
+    return config, [{"key": list(key), "row": row} for key, row in rows.items()]
 
 
 def read_results(path: Path) -> tuple[dict, list[dict]]:

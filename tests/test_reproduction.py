@@ -1,6 +1,7 @@
 """Committed study rows reproduce to the last bit with the code as it is (the project's rule for a refactoring),
 where the platform is the one that wrote them: the same CPU vendor, library builds and OpenBLAS kernels."""
 
+import functools
 import json
 import os
 import subprocess
@@ -24,7 +25,9 @@ def _environment() -> dict[str, str]:
     return {**os.environ, **threads, "OPENBLAS_CORETYPE": "Haswell"}
 
 
+@functools.cache
 def _platform() -> dict:
+    """This platform's record as a study writes it (one subprocess for every study checked)."""
     script = "import json; from aasl_gym.study.log import platform_record; print(json.dumps(platform_record()))"
     done = subprocess.run([sys.executable, "-c", script], env=_environment(), capture_output=True, text=True, cwd=ROOT)
     return json.loads(done.stdout)
