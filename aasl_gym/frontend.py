@@ -55,16 +55,7 @@ def detection_statistic(samples: np.ndarray, band: tuple[float, float], rate: fl
     """
     count = padding * np.shape(samples)[-1]
     # SciPy's transform is numpy's to the last bit here, and pads without a copy (a third faster).
-    in_band = np.abs(fft.fft(samples, count)[..., _band_bins(count, rate, tuple(band))]) ** 2
-    return in_band.max(axis=-1) / (_median(in_band) / np.log(2))
-
-
-def _median(values: np.ndarray) -> np.ndarray:
-    """``np.median`` over the last axis, to the last bit, at a fifth of its cost (its checks and dispatch)."""
-    middle = values.shape[-1] // 2
-    if values.shape[-1] % 2:
-        return np.partition(values, middle, axis=-1)[..., middle]
-    return np.mean(np.partition(values, (middle - 1, middle), axis=-1)[..., middle - 1 : middle + 1], axis=-1)
+    return kernels.peak_over_median(fft.fft(samples, count), _band_bins(count, rate, tuple(band)))
 
 
 @functools.lru_cache(maxsize=16)
@@ -116,7 +107,7 @@ def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard:
     channels = np.array([channel.mobile, channel.fixed])
     if channel.carrier:  # already an envelope about the carrier
         _, gain = _frame_gain(count, channel.rate, channel.carrier, waveform.band, None)
-        filtered = np.fft.ifft(np.fft.fft(channels, axis=-1) * gain, axis=-1)
+        filtered = fft.ifft(fft.fft(channels, axis=-1) * gain, axis=-1, overwrite_x=True)
         times, rate = channel.times, channel.rate
     else:
         kept = int(round(count * envelope_rate / channel.rate))  # bins of the decimated envelope
@@ -133,8 +124,8 @@ def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard:
         )
         spectrum = np.zeros((2, kept), dtype=complex)
         for row, samples in enumerate(channels):  # one long real FFT per channel (faster here than one over both rows)
-            spectrum[row, (bins - centre) % kept] = 2 * np.fft.rfft(samples)[bins] * gain
-        filtered = np.fft.ifft(spectrum, axis=-1) * (kept / count) * correction
+            spectrum[row, (bins - centre) % kept] = 2 * fft.rfft(samples)[bins] * gain
+        filtered = fft.ifft(spectrum, axis=-1, overwrite_x=True) * (kept / count) * correction
     keep = slice(int(round(guard * rate)), len(times) - int(round(guard * rate)))
     return Channel(times[keep], filtered[0][keep], filtered[1][keep], rate, waveform.carrier)
 
@@ -187,16 +178,18 @@ def _window_delays(
     mobile, aligned = envelope.mobile[low:high], envelope.fixed[low - lag : high - lag]
     bounds = np.minimum(np.maximum(edges, low), high) - low  # np.clip's dispatch costs more than the frame's sums
     starts = bounds[:-1][bounds[1:] > bounds[:-1] + 1]  # windows of two samples or more
-    lengths = np.diff(np.append(starts, high - low))
+    lengths = np.diff(starts, append=high - low)
     correlation = np.add.reduceat(np.conj(aligned) * mobile, starts)
     energy = np.sqrt(np.add.reduceat(np.abs(mobile) ** 2, starts) * np.add.reduceat(np.abs(aligned) ** 2, starts))
-    mean_frequency = np.full(len(starts), envelope.carrier)
+    mean_frequency = envelope.carrier
     if not tone:
         products = np.conj(aligned[:-1]) * aligned[1:]
         products[starts[1:] - 1] = 0.0  # increments stay within their window
         increments = np.add.reduceat(products, starts) - (lengths - 1) * noise_lag
         mean_frequency += np.angle(increments) * rate / (2 * np.pi)
-    analytic_phase = np.angle(correlation * np.exp(2j * np.pi * envelope.carrier * lag / rate))  # wrapped to (-pi, pi]
+    if lag:  # (a tone's is zero: the factor would be one)
+        correlation = correlation * np.exp(2j * np.pi * envelope.carrier * lag / rate)
+    analytic_phase = np.angle(correlation)  # wrapped to (-pi, pi]
     delays = lag / rate - analytic_phase / (2 * np.pi * mean_frequency)
     centres = np.add.reduceat(envelope.times[low:high], starts) / lengths
     return delays, np.abs(correlation) / energy, centres
@@ -246,10 +239,14 @@ def delay_track(
 
 def tdoa_fdoa(track: DelayTrack, sound_speed: float) -> FrameEstimate:
     """The TDOA / FDOA stage: RD from the track's mean delay, RRD from its least-squares time slope."""
-    offsets = track.times - track.times.mean()
+    # The means as ndarray.mean() takes them (the sum over the count), without its dispatch.
+    count = len(track.times)
+    offsets = track.times - np.add.reduce(track.times) / count
     slope = np.dot(offsets, track.delays) / np.dot(offsets, offsets)
     return FrameEstimate(
-        float(sound_speed * track.delays.mean()), float(sound_speed * slope), float(np.mean(track.coherences))
+        float(sound_speed * (np.add.reduce(track.delays) / count)),
+        float(sound_speed * slope),
+        float(np.add.reduce(track.coherences) / count),
     )
 
 
@@ -403,7 +400,8 @@ class FrontEnd:
         assert self.waveform is not None  # called on a frame measure() synthesized
         if self.waveform.kind != "tone":
             return True
-        band = tuple(np.asarray(self.waveform.band) - self.waveform.carrier)
+        low, high = self.waveform.band
+        band = (low - self.waveform.carrier, high - self.waveform.carrier)
         threshold = 10 ** (self.detection_snr_db / 10)
         channels = np.array([envelope.mobile, envelope.fixed])
         return bool(np.all(detection_statistic(channels, band, envelope.rate) >= threshold))

@@ -1253,6 +1253,27 @@ def peak_counts(samples: np.ndarray) -> np.ndarray:
 
 
 @_compile
+def _peak_over_median(spectra, bins, out):
+    """See :func:`peak_over_median`: ``spectra`` (R, M), ``out`` (R,)."""
+    power = np.empty(len(bins))
+    for r in range(spectra.shape[0]):
+        for j in range(len(bins)):
+            power[j] = abs(spectra[r, bins[j]]) ** 2
+        out[r] = power.max() / (np.median(power) / math.log(2.0))
+
+
+def peak_over_median(spectra: np.ndarray, bins: np.ndarray) -> np.ndarray:
+    """Each spectrum's (..., M; complex) largest power |X_b|^2 over ``bins`` divided by the median of those powers
+    over ln 2 (..., ): the tone detector's CFAR statistic (:func:`aasl_gym.frontend.detection_statistic`) in one pass,
+    without NumPy's temporaries and its median's checks (a fifth of a frame's processing in the free field). The
+    same as NumPy's ``abs``, ``max`` and ``median`` to rounding."""
+    rows = np.ascontiguousarray(spectra, dtype=complex).reshape(-1, spectra.shape[-1])
+    out = np.empty(rows.shape[0])
+    _peak_over_median(rows, np.ascontiguousarray(bins, dtype=np.int64), out)
+    return out.reshape(spectra.shape[:-1])
+
+
+@_compile
 def _unscented_update(sigmas, values, x, covariance, mean_weights, cov_weights, noise, measured, period, out):
     """See :func:`unscented_update`; ``out`` (n + 1 + n n + 2 + 4,) takes the state, the NIS, the covariance, the
     innovation and the innovation covariance, in that order. Returns the innovation covariance's determinant (the

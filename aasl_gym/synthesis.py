@@ -25,6 +25,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import fft
 
 from aasl_gym import geometry, kernels
 from aasl_gym.bandpass import band_gain
@@ -237,9 +238,8 @@ def _tone_envelope(
 ) -> np.ndarray | None:
     """:func:`received_pressure`'s complex envelope of a tone, compiled (:func:`aasl_gym.kernels.tone_envelope`, the
     same to the last bit): None where its angles are beyond the polynomial sine's range."""
-    shape = (len(paths), len(receivers), 3)  # no paths (noise alone) included
-    relative = np.array([position - receivers for position, _, _ in paths]).reshape(shape)
-    relative_velocity = np.array([velocity - receiver_velocities for _, velocity, _ in paths]).reshape(shape)
+    positions, velocities = (np.reshape([path[part] for path in paths], (-1, 1, 3)) for part in (0, 1))
+    relative, relative_velocity = positions - receivers, velocities - receiver_velocities  # (P, R, 3)
     scales = np.array([gain * amplitude for _, _, gain in paths], dtype=float)
     tone = (waveform.phase, 2 * np.pi * waveform.frequency, sound_speed)
     return kernels.tone_envelope(relative, relative_velocity, scales, offset, times, mixer_phase, tone)
@@ -337,8 +337,8 @@ def receiver_channels(
             bins = _noise_bins(len(times), rate, carrier, waveform.band)
             draws = rng.normal(0.0, sd * np.sqrt(len(times)), (2, len(channels), len(bins)))  # (re / im, channel, bin)
             spectrum = np.zeros(channels.shape, dtype=complex)
-            spectrum[:, bins] = draws[0] + 1j * draws[1]
-            channels += np.fft.ifft(spectrum, axis=-1)
+            spectrum.real[:, bins], spectrum.imag[:, bins] = draws
+            channels += fft.ifft(spectrum, axis=-1, overwrite_x=True)
         else:
             channels += rng.normal(0.0, sd, channels.shape)
     return times, channels

@@ -4,7 +4,7 @@ its detector, the Cramer-Rao sd and the unwrapping of a whole episode."""
 import numpy as np
 import pytest
 
-from aasl_gym import bandpass, frontend, geometry, synthesis
+from aasl_gym import bandpass, frontend, geometry, kernels, synthesis
 from aasl_gym.config import SignalConfig
 
 FIXED = np.array([0.0, 0.0, -0.96])
@@ -338,12 +338,22 @@ def test_saturation_is_detected_on_both_paths(rng):
         assert not frontend.saturated(np.array([samples, samples[::-1]]))
 
 
-def test_the_detectors_median_is_numpys(rng):
-    """The detection statistic's own median (a partition, for speed) against ``np.median``, bit for bit, over
-    odd and even bin counts and stacked channels."""
-    for count in (1, 2, 7, 160, 161):
-        values = rng.exponential(1.0, (3, count))
-        np.testing.assert_array_equal(frontend._median(values), np.median(values, axis=-1))
+def test_the_detection_statistic_is_numpys_formula(rng):
+    """The compiled statistic (:func:`aasl_gym.kernels.peak_over_median`) against its NumPy form - the padded
+    periodogram's in-band peak over the in-band median over ln 2 - over odd and even bin counts (a median of two
+    middle values), one bin, and stacked channels."""
+    for width in (0.0, 1.0, 99.0, 100.0):  # band half-widths (Hz): 1, 3, 161 and 161 bins of the 3,200-point FFT
+        samples = rng.normal(size=(2, 3, 800)) + 1j * rng.normal(size=(2, 3, 800))
+        samples[0, 1] += 3 * np.exp(2j * np.pi * 17.3 * np.arange(800) / 4000)  # a tone in one channel
+        spectrum = np.fft.fft(samples, 3200, axis=-1)
+        bins = np.flatnonzero(np.abs(np.fft.fftfreq(3200, 1 / 4000)) <= width + 1e-9)
+        power = np.abs(spectrum[..., bins]) ** 2
+        expected = power.max(axis=-1) / (np.median(power, axis=-1) / np.log(2))
+        statistic = frontend.detection_statistic(samples, (-width, width), 4000.0)
+        np.testing.assert_allclose(statistic, expected, rtol=1e-14)
+    odd, even = np.array([[1.0, 4.0, 2.0]]), np.array([[1.0, 4.0, 2.0, 3.0]])
+    np.testing.assert_allclose(kernels.peak_over_median(np.sqrt(odd + 0j), np.arange(3)), [4 / (2 / np.log(2))])
+    np.testing.assert_allclose(kernels.peak_over_median(np.sqrt(even + 0j), np.arange(4)), [4 / (2.5 / np.log(2))])
 
 
 def test_further_pairs_share_the_robots_recording(rng):

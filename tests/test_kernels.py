@@ -167,6 +167,7 @@ def test_every_loop_is_compiled():
         "_direct_loop",
         "_lcmap_grid",
         "_peak_counts",
+        "_peak_over_median",
         "_sigma_points",
         "_sigma_moments",
         "_unscented_update",
