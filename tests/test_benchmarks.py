@@ -5,9 +5,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
+import bench_instructions
 from crb_bound import as_few_chance, efficient_count_range
 from heldout_figure import bound_rows
 from reproduce_rows import differences, paper_variants
@@ -64,3 +66,14 @@ def test_the_reproduction_check_maps_a_paper_logs_variants_and_skips_timings():
     logged, now = {"rmse": 1.0, "tracker": {"ms_mean": 0.3, "median_error": 2.0}}, {"rmse": 1.0}
     now["tracker"] = {"ms_mean": 0.5, "median_error": 2.5}
     assert differences(logged, now) == ["tracker.median_error: logged 2.0, now 2.5"]
+
+
+def test_the_instruction_count_runs_and_counts_what_it_is_asked(monkeypatch, capsys):
+    """The child run takes the frames (or steps) it reports, so the counts divide by what ran; counts that are not
+    FEW < MORE are refused with the flag named, before Valgrind is looked for."""
+    assert bench_instructions.run_frontend("free", 3) == 3
+    assert bench_instructions.run_frontend("default", 2) == 2
+    monkeypatch.setattr(sys, "argv", ["bench_instructions.py", "--counts", "5", "3"])
+    with pytest.raises(SystemExit):
+        bench_instructions.main()
+    assert "--counts must be two numbers with 0 <= FEW < MORE, got 5 3" in capsys.readouterr().err
