@@ -107,6 +107,7 @@ def envelopes(channel: Channel, waveform: Waveform, envelope_rate: float, guard:
     channels = np.array([channel.mobile, channel.fixed])
     if channel.carrier:  # already an envelope about the carrier
         _, gain = _frame_gain(count, channel.rate, channel.carrier, waveform.band, None)
+        # SciPy's transforms: NumPy's to the last bit, with their plans cached (NumPy builds one per call).
         filtered = fft.ifft(fft.fft(channels, axis=-1) * gain, axis=-1, overwrite_x=True)
         times, rate = channel.times, channel.rate
     else:

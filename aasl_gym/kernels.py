@@ -1265,8 +1265,8 @@ def _peak_over_median(spectra, bins, out):
 def peak_over_median(spectra: np.ndarray, bins: np.ndarray) -> np.ndarray:
     """Each spectrum's (..., M; complex) largest power |X_b|^2 over ``bins`` divided by the median of those powers
     over ln 2 (..., ): the tone detector's CFAR statistic (:func:`aasl_gym.frontend.detection_statistic`) in one pass,
-    without NumPy's temporaries and its median's checks (a fifth of a frame's processing in the free field). The
-    same as NumPy's ``abs``, ``max`` and ``median`` to rounding."""
+    without NumPy's temporaries and its median's checks. The same as NumPy's ``abs``, ``max`` and ``median`` to
+    rounding; only its comparison with the threshold is used, so no measurement moves."""
     rows = np.ascontiguousarray(spectra, dtype=complex).reshape(-1, spectra.shape[-1])
     out = np.empty(rows.shape[0])
     _peak_over_median(rows, np.ascontiguousarray(bins, dtype=np.int64), out)

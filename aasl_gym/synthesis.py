@@ -338,7 +338,7 @@ def receiver_channels(
             draws = rng.normal(0.0, sd * np.sqrt(len(times)), (2, len(channels), len(bins)))  # (re / im, channel, bin)
             spectrum = np.zeros(channels.shape, dtype=complex)
             spectrum.real[:, bins], spectrum.imag[:, bins] = draws
-            channels += fft.ifft(spectrum, axis=-1, overwrite_x=True)
+            channels += fft.ifft(spectrum, axis=-1, overwrite_x=True)  # SciPy's: NumPy's, its plan cached
         else:
             channels += rng.normal(0.0, sd, channels.shape)
     return times, channels
