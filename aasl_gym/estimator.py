@@ -425,7 +425,9 @@ class SourceTracker:
         # A model with a closed-form linearization hands over its receiver Jacobian at every sigma point with
         # its values; the central point's is the one at the mean.
         linearize = getattr(self.measurement_function, "linearize", None)
-        if linearize is None:
+        if self.measurement_function is direct_measurement:  # compiled, values and receiver Jacobian in one pass
+            z, _, receiver = kernels.direct_path(position, velocity, mobile, mobile_velocity, fixed)
+        elif linearize is None:
             z, receiver = self.measurement_function(position, velocity, mobile, mobile_velocity, fixed), None
         else:
             z, _, receiver = linearize(position, velocity, mobile, mobile_velocity, fixed)
