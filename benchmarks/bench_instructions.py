@@ -11,7 +11,7 @@ says less is done, not by how much the time falls; time whole episodes with ``be
 
 ``--stage frontend``: the signal sensor alone on a robot circling the pod (the default world's or the free field's
 front end). ``--stage episode``: whole episodes of ``AASL-Helix-v0`` with a CV source in signal mode, seeds 0 on
-(about a minute per episode under Valgrind). Needs ``valgrind`` on the PATH. The compiled kernels are cached per
+(about two minutes per episode under Valgrind). Needs ``valgrind`` on the PATH. The compiled kernels are cached per
 processor, and Valgrind's is another one: the first run compiles them for it (about 20 s, then cached).
 """
 
@@ -103,10 +103,12 @@ def main() -> None:
     count_instructions(args.stage, args.world, few)  # compiles the kernels for Valgrind's processor, once
     (many, units), (some, fewer_units) = (count_instructions(args.stage, args.world, n) for n in (more, few))
     per_unit = (many - some) / (units - fewer_units)
+    world = {"default": "default world", "free": "free field"}[args.world]
     if args.stage == "frontend":
-        print(f"{args.world} world, front end: {per_unit:,.0f} instructions per frame")
+        print(f"{world}, front end: {per_unit:,.0f} instructions per frame")
     else:
-        print(f"{args.world} world, whole episodes (seeds {few}-{more - 1}): {per_unit:,.0f} instructions per step")
+        seeds = f"seed {few}" if more - few == 1 else f"seeds {few}-{more - 1}"
+        print(f"{world}, whole episodes ({seeds}): {per_unit:,.0f} instructions per step")
 
 
 if __name__ == "__main__":
