@@ -20,8 +20,11 @@ library for ``|x| <= SINCOS_LIMIT``; beyond it :func:`sincos` hands the array to
 
 What keeps LLVM from vectorising a loop, found the hard way: Python's error model (a division tests for
 zero and raises; ``error_model="numpy"`` gives inf or NaN as NumPy does), a tuple indexed by a loop
-variable, and reading more than a few arrays (each needs a run-time overlap check; past LLVM's limit it
-gives up). So the loops read one array of rows and the fixed hydrophone as one point.
+variable, reading more than a few arrays (each needs a run-time overlap check; past LLVM's limit it
+gives up), a test of a constant inside the loop (a mode: soft-L1 or not, a period, a fold) and a running maximum.
+So the loops read one array of rows and the fixed hydrophone as one point, and such tests sit outside them (session
+41: a window fit's per-sample terms a loop per mode, 12 % off a fit; the tone's angles and their maximum in two
+loops, the tone envelope's time halved).
 
 The window fit's per-sample algebra (:func:`window_terms`, :func:`whitened_chain`) is a few dozen flops on
 2 x 2 and 2 x 6 blocks per sample; as NumPy expressions it was two dozen calls on small arrays and stacked
@@ -374,9 +377,10 @@ def _tone_angles(relative, relative_velocity, scales, offsets, times, mixer_phas
             for n in range(times.shape[0]):
                 x, y, z = x0 + vx * offsets[n], y0 + vy * offsets[n], z0 + vz * offsets[n]
                 distance = math.sqrt(x * x + y * y + z * z)
-                angle = (phase + angular * (times[n] - distance / sound_speed)) - mixer_phase[n]
-                angles[p, r, n], pressures[p, r, n] = angle, scales[p] / distance
-                largest = max(largest, abs(angle))
+                angles[p, r, n] = (phase + angular * (times[n] - distance / sound_speed)) - mixer_phase[n]
+                pressures[p, r, n] = scales[p] / distance
+            for n in range(times.shape[0]):  # apart: a running maximum kept the loop above from vectorising
+                largest = max(largest, abs(angles[p, r, n]))
     return largest <= SINCOS_LIMIT
 
 
@@ -574,7 +578,8 @@ def _lane_states(states, motion, points, k, start, width, fold, lanes):
     low, span = fold[0], fold[1]
     for i in range(width):
         lanes[6, i] = 1.0
-        if span > 0.0:
+    if span > 0.0:  # outside the loop: a branch within it kept the loop from vectorising
+        for i in range(width):
             phase = (lanes[2, i] - low) % (2 * span)
             mirrored = phase > span
             lanes[2, i] = low + (2 * span - phase if mirrored else phase)
@@ -617,9 +622,10 @@ def _frame_mean_slope(width, offsets, period, rows, unwrapped, slips, value, loc
         for i in range(width):
             local[r, i], receiver[r, i] = 0.0, 0.0
     for s in range(frame):
-        for i in range(width):
-            if s > 0:
+        if s > 0:
+            for i in range(width):
                 slips[i] += np.rint((rows[s, 0, i] - rows[s - 1, 0, i]) / period)
+        for i in range(width):
             unwrapped[s, i] = rows[s, 0, i] - slips[i] * period
             value[0, i] += unwrapped[s, i] / frame
     for s in range(frame):
@@ -727,11 +733,14 @@ def _direct_at_sample(lanes, k, width, receivers, fixed, value, local, receiver)
 @numba.njit(inline="always", error_model="numpy")
 def _sample_terms(k, width, states, measured, noise, variances, period, robust, value, receiver, white, error):
     """R_eff's whitener (``white`` rows w00, w10, w11), the whitened residual and its IRLS weight (``error`` rows
-    e0, e1, v0, v1) and its loss (row 4) at sample k, as :func:`_window_terms` and the soft-L1 loss give them."""
+    e0, e1, v0, v1) and its loss (row 4) at sample k, as :func:`_window_terms` and the soft-L1 loss give them. A pass
+    over the lanes per stage, the modes' tests between them (see the module's note)."""
     position_variance, velocity_variance = variances[0], variances[1]
     dim = states.shape[0]
+    n00, n01, n11 = noise[0, 0], noise[1, 0], noise[1, 1]
+    z0, z1 = measured[k, 0], measured[k, 1]
     for i in range(width):
-        r00, r01, r11 = noise[0, 0], noise[1, 0], noise[1, 1]
+        r00, r01, r11 = n00, n01, n11
         for j in range(6):
             variance = position_variance if j < 3 else velocity_variance
             rd, rrd = receiver[j, i], receiver[6 + j, i]
@@ -739,18 +748,26 @@ def _sample_terms(k, width, states, measured, noise, variances, period, robust, 
             r01 += variance * rd * rrd
             r11 += variance * rrd * rrd
         w00, w10, w11 = _whitener(r00, r01, r11)
-        rd_error = measured[k, 0] - (value[0, i] + states[dim - 2, i])
-        rrd_error = measured[k, 1] - (value[1, i] + states[dim - 1, i])
-        if period > 0.0:
-            rd_error = _wrapped(rd_error, period)
-        e0, e1 = w00 * rd_error, w10 * rd_error + w11 * rrd_error
+        rd_error = z0 - (value[0, i] + states[dim - 2, i])
+        rrd_error = z1 - (value[1, i] + states[dim - 1, i])
         white[0, i], white[1, i], white[2, i] = w00, w10, w11
+        error[0, i], error[1, i] = rd_error, rrd_error
+    if period > 0.0:
+        for i in range(width):
+            error[0, i] = _wrapped(error[0, i], period)
+    for i in range(width):
+        rd_error, rrd_error = error[0, i], error[1, i]
+        e0, e1 = white[0, i] * rd_error, white[1, i] * rd_error + white[2, i] * rrd_error
         error[0, i], error[1, i] = e0, e1
-        if robust:
+    if robust:
+        for i in range(width):
+            e0, e1 = error[0, i], error[1, i]
             root0, root1 = math.sqrt(1 + e0 * e0), math.sqrt(1 + e1 * e1)
             error[2, i], error[3, i] = 1 / root0, 1 / root1
             error[4, i] = 2 * (root0 - 1) + 2 * (root1 - 1)
-        else:
+    else:
+        for i in range(width):
+            e0, e1 = error[0, i], error[1, i]
             error[2, i], error[3, i] = 1.0, 1.0
             error[4, i] = e0 * e0 + e1 * e1
 
