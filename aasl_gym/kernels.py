@@ -24,7 +24,9 @@ variable, reading more than a few arrays (each needs a run-time overlap check; p
 gives up), a test of a constant inside the loop (a mode: soft-L1 or not, a period, a fold) and a running maximum.
 So the loops read one array of rows and the fixed hydrophone as one point, and such tests sit outside them (session
 41: a window fit's per-sample terms a loop per mode, 12 % off a fit; the tone's angles and their maximum in two
-loops, the tone envelope's time halved).
+loops, the tone envelope's time halved). Where each lane needs its own small solve, the solve runs over the lanes as
+well (:func:`_lane_solves`: every lane's Levenberg-Marquardt step at once, its row swaps as selects; 7 % more off a
+fit).
 
 The window fit's per-sample algebra (:func:`window_terms`, :func:`whitened_chain`) is a few dozen flops on
 2 x 2 and 2 x 6 blocks per sample; as NumPy expressions it was two dozen calls on small arrays and stacked
@@ -1005,6 +1007,49 @@ def damped_steps(normal: np.ndarray, damping: np.ndarray, gradient: np.ndarray) 
     return steps
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _lane_solves(matrix, right, width, pivot, work, out):
+    """:func:`_solve` for each of a block's ``width`` lanes at once: ``out`` (n, B) = matrix^-1 right for the systems
+    ``matrix`` (n, n, B) and ``right`` (n, B), in place; ``pivot`` (B,) and ``work`` (2, B) are scratch. Each lane
+    takes the operations :func:`_solve` takes on its system, in its order (the row swaps as selects), so that the
+    loops run over the lanes and vectorise."""
+    dim = right.shape[0]
+    best, factor = work[0], work[1]
+    for a in range(dim):
+        for i in range(width):
+            pivot[i], best[i] = a, abs(matrix[a, a, i])
+        for r in range(a + 1, dim):
+            for i in range(width):
+                magnitude = abs(matrix[r, a, i])
+                if magnitude > best[i]:
+                    pivot[i], best[i] = r, magnitude
+        for r in range(a + 1, dim):
+            for b in range(dim):
+                for i in range(width):
+                    upper, lower, swap = matrix[a, b, i], matrix[r, b, i], pivot[i] == r
+                    matrix[a, b, i], matrix[r, b, i] = (lower, upper) if swap else (upper, lower)
+            for i in range(width):
+                upper, lower, swap = right[a, i], right[r, i], pivot[i] == r
+                right[a, i], right[r, i] = (lower, upper) if swap else (upper, lower)
+        for r in range(a + 1, dim):
+            for i in range(width):
+                factor[i] = matrix[r, a, i] / matrix[a, a, i]
+            for b in range(a, dim):
+                for i in range(width):
+                    matrix[r, b, i] -= factor[i] * matrix[a, b, i]
+            for i in range(width):
+                right[r, i] -= factor[i] * right[a, i]
+    total = work[0]
+    for a in range(dim - 1, -1, -1):
+        for i in range(width):
+            total[i] = right[a, i]
+        for b in range(a + 1, dim):
+            for i in range(width):
+                total[i] -= matrix[a, b, i] * out[b, i]
+        for i in range(width):
+            out[a, i] = total[i] / matrix[a, a, i]
+
+
 @_compile
 def _fit(states, prior_mean, prior_sd, motion, fold, data, iterations, max_position_step, costs, information):
     """See :func:`fit`: ``states`` (n, C) are fitted in place, block by block, each block's Levenberg-Marquardt
@@ -1016,7 +1061,8 @@ def _fit(states, prior_mean, prior_sd, motion, fold, data, iterations, max_posit
     loss, normal, pull = np.empty(block), np.empty((dim, dim, block)), np.empty((dim, block))
     trial_loss, trial_normal, trial_pull = np.empty(block), np.empty((dim, dim, block)), np.empty((dim, block))
     prior, trial_prior, cost, damping = np.empty((dim, block)), np.empty((dim, block)), np.empty(block), np.empty(block)
-    matrix, right, step = np.empty((dim, dim)), np.empty(dim), np.empty(dim)
+    matrix, right, step = np.empty((dim, dim, block)), np.empty((dim, block)), np.empty((dim, block))
+    pivot, work = np.empty(block, dtype=np.int64), np.empty((2, block))
     prior_information = 1 / prior_sd**2
     for start in range(0, count, block):
         width = min(block, count - start)
@@ -1030,19 +1076,21 @@ def _fit(states, prior_mean, prior_sd, motion, fold, data, iterations, max_posit
             for a in range(dim):
                 cost[i] += prior[a, i] ** 2
         for _ in range(iterations):
-            for i in range(width):
-                for a in range(dim):
-                    for b in range(a, dim):
-                        matrix[a, b] = matrix[b, a] = normal[a, b, i]
-                    matrix[a, a] += prior_information[a]
-                    matrix[a, a] += damping[i] * matrix[a, a]
+            for a in range(dim):
+                for b in range(a, dim):
+                    for i in range(width):
+                        matrix[a, b, i] = matrix[b, a, i] = normal[a, b, i]
+                for i in range(width):
+                    matrix[a, a, i] += prior_information[a]
+                    matrix[a, a, i] += damping[i] * matrix[a, a, i]
                     # The residuals fall as the predictions rise: the gradient carries -J.
-                    right[a] = -(prior[a, i] / prior_sd[a] - pull[a, i])
-                _solve(matrix, right, step)
-                length = math.sqrt(step[0] * step[0] + step[1] * step[1] + step[2] * step[2])
+                    right[a, i] = -(prior[a, i] / prior_sd[a] - pull[a, i])
+            _lane_solves(matrix, right, width, pivot, work, step)
+            for i in range(width):
+                length = math.sqrt(step[0, i] * step[0, i] + step[1, i] * step[1, i] + step[2, i] * step[2, i])
                 shrink = min(1.0, max_position_step / max(length, 1e-12))
                 for a in range(dim):
-                    trial[a, i] = x[a, i] + step[a] * shrink
+                    trial[a, i] = x[a, i] + step[a, i] * shrink
             _block_terms(
                 trial, start, width, motion, no_points, fold, data, scratch, trial_loss, trial_normal, trial_pull
             )
