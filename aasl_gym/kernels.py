@@ -45,7 +45,8 @@ unless told to); the loops above only agree with their NumPy forms to a few unit
 The direct path runs in the same pass (:func:`_direct`: the values and both Jacobians in closed form), for window
 fits from one start on (session 32: a lone start runs unpadded), and in one pass over LC-MAP's grid
 (:func:`lcmap_grid`: a thousand candidates or more along twenty samples, each one's velocity solve and score in
-cache; 26 -> 9 ms an LC-MAP run). The unscented filters' sigma points, moments and update (:func:`sigma_points`,
+cache; 26 -> 9 ms an LC-MAP run; since session 41 in blocks of candidates, each stage's loop over a block as in the
+window fit, 45 % less again). The unscented filters' sigma points, moments and update (:func:`sigma_points`,
 :func:`sigma_moments`, :func:`unscented_update`), a channel's clipping count (:func:`peak_counts`), the reward's
 Fisher information step (:func:`information_step`) and the greedy planner's horizon (:func:`horizon_information`)
 are compiled too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step.
@@ -1145,111 +1146,169 @@ def fit(
     return fitted.T[:count].copy(), costs[:count], information[:count]
 
 
+# Candidates per block of LC-MAP's grid pass: each stage's loop runs over a block's candidates, so that it vectorises.
+GRID_BLOCK = 64
+
+
 @numba.njit(inline="always", error_model="numpy")
-def _grid_sample(c, k, position, velocity, bias, tau, motion, receivers, fixed, measured, white, period, robust, out):
-    """LC-MAP's grid at sample k for candidate c (its ``position`` and ``velocity`` at the first sample), moving as
-    ``motion`` (4, C or 1, K: s, c, cos, sin of :class:`aasl_gym.initializers.CandidateMotion`) says: the whitened
-    residual times the robust root weights (``out[0, 0:2]``), those weights (``out[0, 2:4]``; ones unless
-    ``robust``) and the whitened Jacobian in [p, v] at the first sample (``out[1:3, 0:6]``, without the weights).
-    Returns the sample's loss (soft-L1's or the square)."""
-    m = 0 if motion.shape[1] == 1 else c
-    s, cc, cos, sin = motion[0, m, k], motion[1, m, k], motion[2, m, k], motion[3, m, k]
-    vx, vy, vz = velocity[0], velocity[1], velocity[2]
-    rd, rrd, gx, gy, gz, qx, qy, qz, _, _, _, _, _, _ = _direct(
-        position[0] + (s * vx - cc * vy), position[1] + (cc * vx + s * vy), position[2] + vz * tau[k],
-        cos * vx - sin * vy, sin * vx + cos * vy, vz,
-        receivers[0, k], receivers[1, k], receivers[2, k], receivers[3, k], receivers[4, k], receivers[5, k],
-        fixed[0], fixed[1], fixed[2],
-    )  # fmt: skip
-    rd_error = measured[k, 0] - rd - bias
-    rrd_error = measured[k, 1] - rrd
+def _grid_sample(start, width, k, positions, velocity, biases, tau, motion, receivers, fixed, measured, white, period,
+                 robust, scratch, out, loss):  # fmt: skip
+    """LC-MAP's grid at sample k for the block's ``width`` candidates from ``start`` (their ``positions`` (C, 3) and
+    ``velocity`` (3, B) at the first sample), moving as ``motion`` (4, C or 1, K: s, c, cos, sin of
+    :class:`aasl_gym.initializers.CandidateMotion`) says: the whitened residual times the robust root weights
+    (``out[0, 0:2]``, (3, 6, B)), those weights (``out[0, 2:4]``; ones unless ``robust``), the whitened Jacobian in
+    [p, v] at the first sample (``out[1:3, 0:6]``, without the weights) and the sample's loss (soft-L1's or the
+    square) into ``loss`` (B,). ``scratch`` (12, B) holds the direct path's residuals and gradients (rows 0:8) and
+    the candidates' motion at the sample (8:12) between the stages."""
+    moving = scratch[8:12]  # the candidates' s, c, cos and sin at sample k
+    for q in range(4):
+        if motion.shape[1] == 1:
+            for i in range(width):
+                moving[q, i] = motion[q, 0, k]
+        else:
+            for i in range(width):
+                moving[q, i] = motion[q, start + i, k]
+    for i in range(width):
+        c = start + i
+        s, cc, cos, sin = moving[0, i], moving[1, i], moving[2, i], moving[3, i]
+        vx, vy, vz = velocity[0, i], velocity[1, i], velocity[2, i]
+        rd, rrd, gx, gy, gz, qx, qy, qz, _, _, _, _, _, _ = _direct(
+            positions[c, 0] + (s * vx - cc * vy), positions[c, 1] + (cc * vx + s * vy), positions[c, 2] + vz * tau[k],
+            cos * vx - sin * vy, sin * vx + cos * vy, vz,
+            receivers[0, k], receivers[1, k], receivers[2, k], receivers[3, k], receivers[4, k], receivers[5, k],
+            fixed[0], fixed[1], fixed[2],
+        )  # fmt: skip
+        scratch[0, i], scratch[1, i] = measured[k, 0] - rd - biases[c], measured[k, 1] - rrd
+        scratch[2, i], scratch[3, i], scratch[4, i] = gx, gy, gz
+        scratch[5, i], scratch[6, i], scratch[7, i] = qx, qy, qz
     if period > 0.0:
-        rd_error = _wrapped(rd_error, period)
-    e0 = white[0, 0] * rd_error + white[0, 1] * rrd_error
-    e1 = white[1, 0] * rd_error + white[1, 1] * rrd_error
+        for i in range(width):
+            scratch[0, i] = _wrapped(scratch[0, i], period)
+    for i in range(width):
+        rd_error, rrd_error = scratch[0, i], scratch[1, i]
+        out[0, 0, i] = white[0, 0] * rd_error + white[0, 1] * rrd_error
+        out[0, 1, i] = white[1, 0] * rd_error + white[1, 1] * rrd_error
     if robust:
-        loss = 2 * (math.sqrt(1 + e0 * e0) - 1) + 2 * (math.sqrt(1 + e1 * e1) - 1)
-        root0, root1 = (1 + e0 * e0) ** -0.25, (1 + e1 * e1) ** -0.25
+        for i in range(width):
+            e0, e1 = out[0, 0, i], out[0, 1, i]
+            loss[i] = 2 * (math.sqrt(1 + e0 * e0) - 1) + 2 * (math.sqrt(1 + e1 * e1) - 1)
+            root0, root1 = (1 + e0 * e0) ** -0.25, (1 + e1 * e1) ** -0.25
+            out[0, 0, i], out[0, 1, i], out[0, 2, i], out[0, 3, i] = root0 * e0, root1 * e1, root0, root1
     else:
-        loss, root0, root1 = e0 * e0 + e1 * e1, 1.0, 1.0
-    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = root0 * e0, root1 * e1, root0, root1
+        for i in range(width):
+            e0, e1 = out[0, 0, i], out[0, 1, i]
+            loss[i] = e0 * e0 + e1 * e1
+            out[0, 2, i], out[0, 3, i] = 1.0, 1.0
     # Each whitened row of [RD, RRD] in [p(t), v(t)] - RD's (g, 0), RRD's (q, g) - chained to [p, v] at the first
     # sample.
     for row in range(2):
         w0, w1 = white[row, 0], white[row, 1]
-        p0, p1, p2 = w0 * gx + w1 * qx, w0 * gy + w1 * qy, w0 * gz + w1 * qz
-        u0, u1, u2 = w1 * gx, w1 * gy, w1 * gz
-        out[1 + row, 0], out[1 + row, 1], out[1 + row, 2] = p0, p1, p2
-        out[1 + row, 3] = p0 * s + p1 * cc + u0 * cos + u1 * sin
-        out[1 + row, 4] = -p0 * cc + p1 * s - u0 * sin + u1 * cos
-        out[1 + row, 5] = p2 * tau[k] + u2
-    return loss
+        for i in range(width):
+            s, cc, cos, sin = moving[0, i], moving[1, i], moving[2, i], moving[3, i]
+            gx, gy, gz = scratch[2, i], scratch[3, i], scratch[4, i]
+            qx, qy, qz = scratch[5, i], scratch[6, i], scratch[7, i]
+            p0, p1, p2 = w0 * gx + w1 * qx, w0 * gy + w1 * qy, w0 * gz + w1 * qz
+            u0, u1, u2 = w1 * gx, w1 * gy, w1 * gz
+            out[1 + row, 0, i], out[1 + row, 1, i], out[1 + row, 2, i] = p0, p1, p2
+            out[1 + row, 3, i] = p0 * s + p1 * cc + u0 * cos + u1 * sin
+            out[1 + row, 4, i] = -p0 * cc + p1 * s - u0 * sin + u1 * cos
+            out[1 + row, 5, i] = p2 * tau[k] + u2
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _grid_velocity(c, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust, precision,
-                   iterations, velocity, terms, last_jacobians, normal, right, step):  # fmt: skip
-    """Candidate c's MAP velocity from rest (``velocity``, in place) by ``iterations`` Gauss-Newton steps with the
-    velocity prior's ``precision``; the last linearization's whitened Jacobians stay in ``last_jacobians``."""
+def _grid_velocity(start, width, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust,
+                   precision, iterations, velocity, work, last_jacobians):  # fmt: skip
+    """The block's candidates' MAP velocities from rest (``velocity`` (3, B), in place) by ``iterations``
+    Gauss-Newton steps with the velocity prior's ``precision``; the last linearization's whitened Jacobians stay in
+    ``last_jacobians`` (K, 2, 6, B). ``work`` holds :func:`_grid_block`'s scratch arrays."""
+    scratch, terms, loss, normal, right, step, pivot, solve_work = work
     velocity[:] = 0.0
     for _ in range(iterations):
         normal[:] = 0.0
         right[:] = 0.0
         for k in range(tau.shape[0]):
-            _grid_sample(c, k, positions[c], velocity, biases[c], tau, motion, receivers, fixed, measured,
-                         white, period, robust, terms)  # fmt: skip
+            _grid_sample(start, width, k, positions, velocity, biases, tau, motion, receivers, fixed, measured,
+                         white, period, robust, scratch, terms, loss)  # fmt: skip
             for row in range(2):
-                root, error = terms[0, 2 + row], terms[0, row]
                 for a in range(3):
-                    right[a] += root * terms[1 + row, 3 + a] * error
-                    for b in range(3):
-                        normal[a, b] += (root * terms[1 + row, 3 + a]) * (root * terms[1 + row, 3 + b])
-            last_jacobians[k] = terms[1:3]
+                    for i in range(width):
+                        right[a, i] += terms[0, 2 + row, i] * terms[1 + row, 3 + a, i] * terms[0, row, i]
+                    for b in range(a, 3):
+                        for i in range(width):
+                            root = terms[0, 2 + row, i]
+                            normal[a, b, i] += (root * terms[1 + row, 3 + a, i]) * (root * terms[1 + row, 3 + b, i])
+            for row in range(2):
+                for a in range(6):
+                    for i in range(width):
+                        last_jacobians[k, row, a, i] = terms[1 + row, a, i]
         for a in range(3):
-            normal[a, a] += precision
-            right[a] -= velocity[a] * precision
-        _solve(normal, right, step)
+            for b in range(a):
+                for i in range(width):
+                    normal[a, b, i] = normal[b, a, i]
+            for i in range(width):
+                normal[a, a, i] += precision
+                right[a, i] -= velocity[a, i] * precision
+        _lane_solves(normal, right, width, pivot, solve_work, step)
         for a in range(3):
-            velocity[a] += step[a]
+            for i in range(width):
+                velocity[a, i] += step[a, i]
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _grid_score(c, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust, velocity,
-                terms, last_jacobians, information):  # fmt: skip
-    """Candidate c's loss at its solved ``velocity`` (returned) and the information of the last linearization (one
-    small Gauss-Newton step away) weighed with the root weights at the solved velocity, as the NumPy score does,
-    into ``information`` (6, 6), without its prior."""
-    cost = 0.0
+def _grid_score(start, width, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust,
+                velocity, work, last_jacobians, cost, information):  # fmt: skip
+    """The block's candidates' loss at their solved ``velocity`` (into ``cost`` (B,)) and the information of the last
+    linearization (one small Gauss-Newton step away) weighed with the root weights at the solved velocity, as the
+    NumPy score does, into ``information`` (6, 6, B), without its prior."""
+    scratch, terms, loss = work[0], work[1], work[2]
+    cost[:] = 0.0
     information[:] = 0.0
     for k in range(tau.shape[0]):
-        cost += _grid_sample(c, k, positions[c], velocity, biases[c], tau, motion, receivers, fixed, measured,
-                             white, period, robust, terms)  # fmt: skip
+        _grid_sample(start, width, k, positions, velocity, biases, tau, motion, receivers, fixed, measured,
+                     white, period, robust, scratch, terms, loss)  # fmt: skip
+        for i in range(width):
+            cost[i] += loss[i]
         for row in range(2):
-            root = terms[0, 2 + row]
             for a in range(6):
-                for b in range(6):
-                    information[a, b] += (root * last_jacobians[k, row, a]) * (root * last_jacobians[k, row, b])
-    return cost
+                for b in range(a, 6):  # the lower triangle is the same products (x y = y x exactly)
+                    for i in range(width):
+                        root = terms[0, 2 + row, i]
+                        information[a, b, i] += (root * last_jacobians[k, row, a, i]) * (
+                            root * last_jacobians[k, row, b, i]
+                        )
+    for a in range(6):
+        for b in range(a):
+            for i in range(width):
+                information[a, b, i] = information[b, a, i]
 
 
 @_compile
 def _lcmap_grid(positions, biases, tau, motion, receivers, fixed, measured, white, period, robust, precisions,
                 iterations, velocities, costs, information):  # fmt: skip
-    """See :func:`lcmap_grid`."""
+    """See :func:`lcmap_grid`: the candidates in blocks of ``GRID_BLOCK``, each stage over a block's candidates."""
     position_precision, velocity_precision = precisions[0], precisions[1]
-    terms, last_jacobians = np.empty((3, 6)), np.empty((tau.shape[0], 2, 6))
-    normal, right, step = np.empty((3, 3)), np.empty(3), np.empty(3)
-    for c in range(positions.shape[0]):
-        velocity = velocities[c]
-        _grid_velocity(
-            c, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust,
-            velocity_precision, iterations, velocity, terms, last_jacobians, normal, right, step,
-        )  # fmt: skip
-        cost = _grid_score(c, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust,
-                           velocity, terms, last_jacobians, information[c])  # fmt: skip
-        costs[c] = cost + velocity_precision * (velocity[0] ** 2 + velocity[1] ** 2 + velocity[2] ** 2)
-        for a in range(6):
-            information[c, a, a] += position_precision if a < 3 else velocity_precision
+    block = GRID_BLOCK
+    work = (
+        np.empty((12, block)), np.empty((3, 6, block)), np.empty(block), np.empty((3, 3, block)), np.empty((3, block)),
+        np.empty((3, block)), np.empty(block, dtype=np.int64), np.empty((2, block)),
+    )  # fmt: skip
+    velocity, cost = np.empty((3, block)), np.empty(block)
+    last_jacobians, lane_information = np.empty((tau.shape[0], 2, 6, block)), np.empty((6, 6, block))
+    for start in range(0, positions.shape[0], block):
+        width = min(block, positions.shape[0] - start)
+        _grid_velocity(start, width, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust,
+                       velocity_precision, iterations, velocity, work, last_jacobians)  # fmt: skip
+        _grid_score(start, width, positions, biases, tau, motion, receivers, fixed, measured, white, period, robust,
+                    velocity, work, last_jacobians, cost, lane_information)  # fmt: skip
+        for i in range(width):
+            c = start + i
+            for a in range(3):
+                velocities[c, a] = velocity[a, i]
+            costs[c] = cost[i] + velocity_precision * (velocity[0, i] ** 2 + velocity[1, i] ** 2 + velocity[2, i] ** 2)
+            for a in range(6):
+                for b in range(6):
+                    information[c, a, b] = lane_information[a, b, i]
+                information[c, a, a] += position_precision if a < 3 else velocity_precision
 
 
 def lcmap_grid(
