@@ -179,7 +179,9 @@ def _window_delays(
     mobile, aligned = envelope.mobile[low:high], envelope.fixed[low - lag : high - lag]
     bounds = np.minimum(np.maximum(edges, low), high) - low  # np.clip's dispatch costs more than the frame's sums
     starts = bounds[:-1][bounds[1:] > bounds[:-1] + 1]  # windows of two samples or more
-    lengths = np.diff(starts, append=high - low)
+    lengths = np.empty_like(starts)  # np.diff(starts, append=high - low), without its dispatch
+    lengths[:-1] = starts[1:] - starts[:-1]
+    lengths[-1:] = high - low - starts[-1:]
     correlation = np.add.reduceat(np.conj(aligned) * mobile, starts)
     energy = np.sqrt(np.add.reduceat(np.abs(mobile) ** 2, starts) * np.add.reduceat(np.abs(aligned) ** 2, starts))
     mean_frequency = envelope.carrier

@@ -307,7 +307,7 @@ def unwrap_to_period(values: np.ndarray, period: float) -> np.ndarray:
     """``values`` (..., S) made continuous along the last axis: each step between neighbours moved by
     whole periods into [-period/2, period/2] (``np.unwrap`` in the values' own unit, at a third of its cost)."""
     values = np.asarray(values, dtype=float)
-    slips = np.cumsum(np.round(np.diff(values, axis=-1) / period), axis=-1) * period
+    slips = np.cumsum(np.round((values[..., 1:] - values[..., :-1]) / period), axis=-1) * period  # np.diff's terms
     unwrapped = values.copy()
     unwrapped[..., 1:] -= slips
     return unwrapped
