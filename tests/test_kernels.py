@@ -206,6 +206,28 @@ def test_damped_steps_solve_what_numpy_solves():
     np.testing.assert_allclose(kernels.damped_steps(normal, damping, gradient), expected[..., 0], rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("dim", [3, 8], ids=["grid-velocity", "window-fit"])
+def test_the_lanes_solve_as_each_system_alone_to_the_last_bit(dim):
+    """Every lane's system solved at once (``_lane_solves``: the window fit's and LC-MAP's grid's steps) is each
+    system solved alone (``_solve``) to the last bit, row swaps included, so that a start's fit does not depend on
+    the block or lane it ran in; and both are what NumPy solves, to rounding."""
+    rng = np.random.default_rng(8)
+    lanes = 13  # not a multiple of the vector width
+    matrices, rights = rng.normal(size=(lanes, dim, dim)), rng.normal(size=(lanes, dim))
+    matrices[::2] += 10 * np.eye(dim)  # diagonally dominant: no row swap; the others swap rows
+    matrices[1, 0, 0] = 0.0  # no first pivot: a swap for certain
+    alone = np.empty((lanes, dim))
+    for i in range(lanes):
+        kernels._solve(matrices[i].copy(), rights[i].copy(), alone[i])
+    together = np.empty((dim, lanes))
+    kernels._lane_solves(
+        np.ascontiguousarray(matrices.transpose(1, 2, 0)), np.ascontiguousarray(rights.T), lanes,
+        np.empty(lanes, dtype=np.int64), np.empty((2, lanes)), together,
+    )  # fmt: skip
+    np.testing.assert_array_equal(together.T, alone)
+    np.testing.assert_allclose(alone, np.linalg.solve(matrices, rights[..., None])[..., 0], rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.parametrize("shape", [(), (4, 17)], ids=["point", "sigma-points"])
 def test_the_compiled_direct_path_is_the_numpy_one(shape):
     """The direct path's values and both Jacobians from one compiled pass against the NumPy forms, to rounding, for one
