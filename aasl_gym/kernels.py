@@ -1220,7 +1220,7 @@ def _grid_velocity(start, width, positions, biases, tau, motion, receivers, fixe
                    precision, iterations, velocity, work, last_jacobians):  # fmt: skip
     """The block's candidates' MAP velocities from rest (``velocity`` (3, B), in place) by ``iterations``
     Gauss-Newton steps with the velocity prior's ``precision``; the last linearization's whitened Jacobians stay in
-    ``last_jacobians`` (K, 2, 6, B). ``work`` holds :func:`_grid_block`'s scratch arrays."""
+    ``last_jacobians`` (K, 2, 6, B). ``work`` holds :func:`_lcmap_grid`'s scratch arrays."""
     scratch, terms, loss, normal, right, step, pivot, solve_work = work
     velocity[:] = 0.0
     for _ in range(iterations):
