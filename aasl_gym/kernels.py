@@ -248,9 +248,10 @@ def _frame_combine(range_difference, paths, offsets, period, out):
     unwrapped = np.empty_like(range_difference)
     # Every inner loop runs over the columns i, so that it vectorises.
     for s in range(samples):
-        for i in range(count):
-            if s > 0:
+        if s > 0:  # outside the loop over the columns, as in _frame_mean_slope
+            for i in range(count):
                 slips[i] += np.rint((range_difference[s, i] - range_difference[s - 1, i]) / period)
+        for i in range(count):
             unwrapped[s, i] = range_difference[s, i] - slips[i] * period
             out[0, i] += unwrapped[s, i] / samples
     for s in range(samples):
