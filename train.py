@@ -6,8 +6,9 @@
 Writes DIR/model.zip (with DIR/model.vecnormalize.pkl when the schedule normalizes observations or
 rewards), DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints under
 DIR/checkpoints/, the best model of the periodic evaluations under DIR/best/, their learning curve in
-DIR/evaluations.csv and, when TensorBoard is installed, logs under DIR/tb/. Every file is written
-atomically. The periodic evaluation runs the same seeds each time (``schedule.eval_seed`` onward), which
+DIR/evaluations.csv, and SB3's records as training goes (losses, the training episodes' metrics) in
+DIR/progress.csv and, when TensorBoard is installed, under DIR/tb/. Every file but those running logs is
+written atomically. The periodic evaluation runs the same seeds each time (``schedule.eval_seed`` onward), which
 training never uses: training env i starts from seed S + i and every later episode continues that env's
 generator.
 """

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger, make_output_format
 
 from aasl_gym.config import ConfigError, EnvConfig
 from aasl_gym.io import atomic_write, atomic_write_text
@@ -188,7 +189,8 @@ class AtomicCheckpoint(BaseCallback):
 
 class EpisodeMetrics(BaseCallback):
     """Logs the training episodes' convergence time, success and final error beside the reward
-    (TensorBoard's ``episode/`` scalars), averaged over the episodes that ended in each rollout."""
+    (the ``episode/`` columns of ``progress.csv`` and TensorBoard's scalars), averaged over the episodes that ended
+    in each rollout."""
 
     def __init__(self):
         super().__init__()
@@ -235,13 +237,18 @@ def make_callbacks(
     ]
 
 
-def _tensorboard_log(out: Path) -> str | None:
-    """Where TensorBoard logs go, when it is installed."""
+def _training_logger(out: Path) -> Logger:
+    """SB3's logger for a run: its records (losses, the training episodes' metrics) to ``out/progress.csv``, and
+    to TensorBoard in ``out/tb`` when TensorBoard is installed. Set on the model: left to itself, SB3 makes a
+    folder in the system's temporary directory for every run without TensorBoard."""
+    formats = [make_output_format("csv", str(out))]
     try:
         import tensorboard  # noqa: F401
     except ImportError:
-        return None
-    return str(out / "tb")
+        pass
+    else:
+        formats.append(make_output_format("tensorboard", str(out / "tb")))
+    return Logger(folder=str(out), output_formats=formats)
 
 
 def train(
@@ -281,12 +288,12 @@ def train(
                 envs,
                 seed=seed,
                 verbose=0,
-                tensorboard_log=_tensorboard_log(out),
                 device="auto",
                 **hyperparameters,
             )
         except TypeError as exc:
             raise ConfigError(f"section '{algo}' has a keyword {cls.__name__} does not take ({exc})") from exc
+        model.set_logger(_training_logger(out))
         model.aasl_env_id = schedule.env  # saved with every checkpoint, so evaluation runs the policy in its env
         callbacks = make_callbacks(
             out,
@@ -302,7 +309,10 @@ def train(
             f"{out}; evaluating every {schedule.eval_every:,} steps on seeds {schedule.eval_seeds[0]}-"
             f"{schedule.eval_seeds[-1]}"
         )
-        model.learn(total_timesteps=schedule.timesteps, callback=callbacks, progress_bar=True)
+        try:
+            model.learn(total_timesteps=schedule.timesteps, callback=callbacks, progress_bar=True)
+        finally:
+            model.logger.close()
         return save_model(model, out / "model.zip")
     finally:
         envs.close()

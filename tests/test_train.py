@@ -1,7 +1,9 @@
 """train.py end to end on a tiny job, and what it writes loads back with its normalization."""
 
 import itertools
+import os
 import re
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -41,9 +43,12 @@ def tiny(tmp_path):
     return config, hyper
 
 
-def test_tiny_ppo_run_writes_a_loadable_model_that_evaluate_runs(tiny, tmp_path, capsys):
+def test_tiny_ppo_run_writes_a_loadable_model_that_evaluate_runs(tiny, tmp_path, capsys, monkeypatch):
     config, hyper = tiny
     out = tmp_path / "run"
+    temporary = tmp_path / "tmp"  # the system's temporary directory, as SB3 finds it
+    temporary.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temporary))
     assert (
         train.main(["--algo", "ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
     )
@@ -55,6 +60,9 @@ def test_tiny_ppo_run_writes_a_loadable_model_that_evaluate_runs(tiny, tmp_path,
     curve = (out / "evaluations.csv").read_text().splitlines()
     assert curve[0].startswith("timesteps,mean_return") and [line.split(",")[0] for line in curve[1:]] == ["128", "256"]
     assert not list(out.rglob(".*"))  # no temporary files left behind
+    progress = (out / "progress.csv").read_text().splitlines()  # SB3's own records, the episodes' metrics among them
+    assert len(progress) > 1 and "episode/success_1m" in progress[0].split(",")
+    assert not list(temporary.glob("SB3-*"))  # SB3 kept its log in the run's folder, not a temporary one
 
     policy = load_model(f"ppo:{out / 'model.zip'}")
     assert policy.normalizer is not None and not policy.normalizer.training
@@ -366,8 +374,9 @@ def test_rl_zoo3_trains_the_env_with_the_shipped_hyperparameters(tmp_path):
         "--env-kwargs",
         "measurement:'geometric'",
     ]
+    logs = {**os.environ, "SB3_LOGDIR": str(tmp_path / "sb3")}  # SB3's own log, else a folder in the system's /tmp
     result = subprocess.run(
-        command, capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parent.parent
+        command, capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parent.parent, env=logs
     )
     assert result.returncode == 0, result.stderr[-2000:]
     (model,) = tmp_path.glob("ppo/AASL-Greedy-v0_*/AASL-Greedy-v0.zip")
