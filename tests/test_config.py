@@ -4,6 +4,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import pytest
+import yaml
 
 import aasl_gym  # noqa: F401  (registers the ids)
 from aasl_gym.config import ConfigError, EnvConfig, from_dict, load_config, to_dict
@@ -25,6 +26,22 @@ def test_shipped_configs_load(path):
 
 def test_default_yaml_is_the_default():
     assert load_config(Path(__file__).resolve().parent.parent / "configs" / "default.yaml") == EnvConfig()
+
+
+def _field_names(section: dict, prefix: str = "") -> set[str]:
+    """Dotted names of a config tree's leaves (a field whose value is a non-empty mapping is a section)."""
+    names = set()
+    for key, value in section.items():
+        nested = isinstance(value, dict) and value
+        names |= _field_names(value, f"{prefix}{key}.") if nested else {prefix + key}
+    return names
+
+
+def test_default_yaml_names_every_field():
+    """The README sends users to configs/default.yaml for every field: loading it fills missing ones with their
+    defaults, so the test above cannot see a field the file leaves out."""
+    written = yaml.safe_load((Path(__file__).resolve().parent.parent / "configs" / "default.yaml").read_text())
+    assert _field_names(written) == _field_names(to_dict(EnvConfig()))
 
 
 @pytest.mark.parametrize(
