@@ -28,6 +28,7 @@ from aasl_gym.study.jobs import (
     check_overrides,
     effective_config,
     episode_key,
+    filter_motion_models,
 )
 from aasl_gym.study.log import EpisodeLog, LogMismatch
 from aasl_gym.study.plots import pop_trajectories, write_plots, write_trajectory_plots
@@ -154,7 +155,8 @@ def write_outputs(
     if not args.no_plots:
         plots = write_plots(args.out, rows, summary) + write_trajectory_plots(args.out, trajectories, effective)
     write_results(args.out / "results.json", command, effective, rows, summary, comparisons)
-    write_report(args.out / "report.md", command, effective, summary, comparisons, plots)
+    models = filter_motion_models(jobs)
+    write_report(args.out / "report.md", command, effective, models, summary, comparisons, plots)
     return summary, plots
 
 

@@ -41,6 +41,7 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
         assert (out / name).stat().st_size > 0
     opening = (out / "report.md").read_text().splitlines()[2]
     assert opening.startswith("In short: Static sources:") and "of 1 episode " in opening and "+-98 points" in opening
+    assert "filter motion model `cv` for every source motion;" in (out / "report.md").read_text()  # static's own
     results = json.loads((out / "results.json").read_text())
     assert set(results) >= {"command", "config", "episodes", "summary"}
     # Where it ran: a seed's episode is the same to the last bit only on one machine and build.
@@ -76,6 +77,17 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     # paired on seeds: every policy x initializer saw the same seed
     assert {r["seed"] for r in results["episodes"]} == {1000}
     assert results["config"]["world"]["reflections"] is False
+
+
+def test_the_report_says_which_sources_the_filter_does_not_match():
+    """A CV filter on CA and CTRV sources fails where the matched one finds them: the report must say which it ran."""
+    from aasl_gym.study.report import _filter_models
+
+    one = _filter_models({"static": "cv", "cv": "cv", "ca": "cv", "ctrv": "cv"})
+    assert one.startswith("filter motion model `cv` for every source motion") and "the ca, ctrv sources" in one
+    assert "not matched" not in _filter_models({"static": "cv", "cv": "cv"})
+    matched = _filter_models({"static": "cv", "ctrv": "ctrv"})
+    assert matched == "filter motion model per source motion: static `cv`, ctrv `ctrv`"
 
 
 def test_rows_are_the_same_with_one_worker_and_with_two(tmp_path):

@@ -81,6 +81,11 @@ def effective_config(config: EnvConfig, job: Job) -> EnvConfig:
     return config.replace(world=job.config["world"], filter=job.config["filter"], measurement={"mode": job.measurement})
 
 
+def filter_motion_models(jobs: list[Job]) -> dict[str, str]:
+    """The filter's motion model the jobs run for each source motion (the config's where no job names one)."""
+    return {job.motion: job.filter_model or job.config["filter"]["motion_model"] for job in jobs}
+
+
 def episode_key(job: Job) -> tuple:
     """What names an episode in the resume log (the config is the log's header: the same for all but a
     variant's own fields, which its name stands for)."""

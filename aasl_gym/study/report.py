@@ -8,6 +8,7 @@ from pathlib import Path
 
 from aasl_gym.config import EnvConfig, to_dict
 from aasl_gym.io import atomic_write_text
+from aasl_gym.study.jobs import MATCHED_FILTER
 from aasl_gym.study.log import Row, write_results_json
 
 SUMMARY_HEADER = [
@@ -58,7 +59,18 @@ def plain_summary(summary: list[Row]) -> list[str]:
     return ["In short: " + " ".join(sentences), ""]
 
 
-def _setup(config: EnvConfig) -> str:
+def _filter_models(models: dict[str, str]) -> str:
+    """The filter's motion model for each source motion (``models``), in words; where one model serves every
+    motion, the motions it does not match are named (their sources move otherwise than it predicts)."""
+    if len(set(models.values())) > 1:
+        return "filter motion model per source motion: " + ", ".join(f"{m} `{f}`" for m, f in models.items())
+    (model,) = set(models.values())
+    mismatched = [m for m in models if MATCHED_FILTER.get(m) != model]
+    note = f" (not matched to the {', '.join(mismatched)} sources; `--filter-model matched` matches it)"
+    return f"filter motion model `{model}` for every source motion" + (note if mismatched else "")
+
+
+def _setup(config: EnvConfig, filter_models: dict[str, str]) -> str:
     """One paragraph on the measurements, navigation, reflections, filter and episode."""
     if config.measurement.mode == "geometric":
         measurements = (
@@ -74,7 +86,7 @@ def _setup(config: EnvConfig) -> str:
     return (
         measurements + f"navigation sigma_rov = {config.receiver.nav_position_sd} m; "
         f"reflections {'on' if config.world.reflections else 'off'}; filter multipath model "
-        f"`{config.filter_multipath}`; episode {config.episode.duration:.0f} s at "
+        f"`{config.filter_multipath}`; {_filter_models(filter_models)}; episode {config.episode.duration:.0f} s at "
         f"{config.measurement.rate:.0f} Hz."
     )
 
@@ -113,17 +125,23 @@ def _comparison_section(field: str, rows: list[Row]) -> list[str]:
 
 
 def write_report(
-    path: Path, command: str, config: EnvConfig, summary: list[Row], comparisons: dict[str, list[Row]], plots: list[str]
+    path: Path,
+    command: str,
+    config: EnvConfig,
+    filter_models: dict[str, str],
+    summary: list[Row],
+    comparisons: dict[str, list[Row]],
+    plots: list[str],
 ) -> None:
-    """``report.md``, atomically: ``config`` is the one the episodes ran with, ``plots`` the figures'
-    file names beside it."""
+    """``report.md``, atomically: ``config`` is the one the episodes ran with, ``filter_models`` the filter's
+    motion model for each source motion, ``plots`` the figures' file names beside it."""
     lines = [
         "# AASL-Gym evaluation",
         "",
         *plain_summary(summary),
         f"Command: `{command}`",
         "",
-        _setup(config),
+        _setup(config, filter_models),
         "",
         DEFINITIONS,
         "",
