@@ -28,7 +28,7 @@ from scipy import linalg
 
 from aasl_gym import kernels
 from aasl_gym.config import FilterConfig
-from aasl_gym.motion import coordinated_turn_displacement
+from aasl_gym.motion import coordinated_turn_displacement, small_angle_series
 
 BASE_DIM = 8  # [p, v, b_p, b_v]: the layout initializers produce
 LIMIT_GRAZE = 0.05  # a speed-limited CA's Jacobian: the least cosine between a and the velocity at the limit
@@ -152,18 +152,40 @@ class MotionModel:
 
     def trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         """States (C, n) carried ``lags`` (K,) seconds along the model (lags may be negative): (C, K, n)."""
-        expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim))
-        moved = self._advance(expanded, np.asarray(lags, dtype=float)[None, :, None])
+        moved = self._free_trajectory(states, lags)
         return self._fold(moved) if self.fold_trajectories else moved
+
+    def _free_trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        """:meth:`trajectory` before the fold (a fresh array)."""
+        expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim))
+        return self._advance(expanded, np.asarray(lags, dtype=float)[None, :, None])
 
     def source_trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         """:meth:`trajectory` as a measurement sees it: the source's own velocity (:meth:`velocity`) in 3:6."""
-        return self.trajectory(states, lags)
+        return self._source_velocity(self.trajectory(states, lags))
 
-    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:  # pragma: no cover
+    def _source_velocity(self, trajectory: np.ndarray) -> np.ndarray:
+        """A trajectory (..., n) with the source's own velocity in 3:6, in place (the state's, for most models)."""
+        return trajectory
+
+    def trajectory_jacobian(
+        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
+    ) -> np.ndarray:  # pragma: no cover
         """d[p, v](t_k) / d x of :meth:`trajectory`: (C, K, 6, n - 2), over the components that move the
-        trajectory (the biases do not); each model gives it in closed form."""
+        trajectory (the biases do not); each model gives it in closed form. ``free_depth`` is the unfolded
+        trajectory's z (C, K) where the caller has it (:meth:`trajectory_terms`); else the fold's signs run the
+        free motion again."""
         raise NotImplementedError
+
+    def trajectory_terms(self, states: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`source_trajectory` and :meth:`trajectory_jacobian` of ``states`` (C, n) at ``lags`` (K,) together,
+        the same arrays, with the free motion run once for both: what a window fit reads where the free motion is
+        not one matrix (a CTRV's, a speed-limited CA's). Run apart, the Jacobian's fold ran it again."""
+        lags = np.asarray(lags, dtype=float)
+        moved = self._free_trajectory(states, lags)
+        free_depth = moved[..., 2].copy()  # the fold changes it in place
+        trajectory = self._fold(moved) if self.fold_trajectories else moved
+        return self._source_velocity(trajectory), self.trajectory_jacobian(states, lags, free_depth)
 
     def free_motion_matrix(self, lags: np.ndarray) -> np.ndarray | None:
         """Where the free motion is linear in the state, one matrix for every state: d[p, v](t_k) / d x of it
@@ -177,14 +199,18 @@ class MotionModel:
         """(z_min, z_max) (m) that :meth:`trajectory` folds into, or None."""
         return self.depth_bounds if self.fold_trajectories else None
 
-    def _folded(self, jacobian: np.ndarray, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+    def _folded(
+        self, jacobian: np.ndarray, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
+    ) -> np.ndarray:
         """A free trajectory's Jacobian (C, K, 6, m) with the fold's sign (see :meth:`_fold`) on its z and
         v_z rows where the fold mirrored the state. A free motion's vertical part is the same in every
-        model (z + v_z t, with a_z t^2 / 2 for CA), so the fold is one sign per sample."""
+        model (z + v_z t, with a_z t^2 / 2 for CA), so the fold is one sign per sample. ``free_depth``: the
+        unfolded trajectory's z (C, K), run here if None."""
         if not self.fold_trajectories:
             return jacobian
-        expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim))
-        mirrored = self._fold_phase(self._advance(expanded, lags[None, :, None])[..., 2])[3]
+        if free_depth is None:
+            free_depth = self._free_trajectory(states, lags)[..., 2]
+        mirrored = self._fold_phase(free_depth)[3]
         sign = np.ones(jacobian.shape[:2] + (6, 1))
         sign[..., [2, 5], 0] = np.where(mirrored, -1.0, 1.0)[..., None]
         return jacobian * sign
@@ -226,13 +252,15 @@ class LinearMotionModel(MotionModel):
     """A model whose free motion is linear in the state: its trajectory Jacobian is the transition's
     matrix, the same for every state, with the fold's sign on the vertical rows."""
 
-    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+    def trajectory_jacobian(
+        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
+    ) -> np.ndarray:
         """:meth:`MotionModel.trajectory_jacobian`: the transition of each moving component's unit vector,
         sign-flipped in z and v_z where a fold mirrored the state. Without folding it is a read-only view
         shared by all the states."""
         lags = np.asarray(lags, dtype=float)
         matrix = self._free_matrix(lags)
-        return self._folded(np.broadcast_to(matrix, (len(states),) + matrix.shape), states, lags)
+        return self._folded(np.broadcast_to(matrix, (len(states),) + matrix.shape), states, lags, free_depth)
 
     def free_motion_matrix(self, lags: np.ndarray) -> np.ndarray | None:
         """:meth:`MotionModel.free_motion_matrix`: the transition of each moving component's unit vector."""
@@ -327,8 +355,7 @@ class ConstantAcceleration(LinearMotionModel):
             x[3:6] *= self.speed_limit / speed
         return x, p
 
-    def source_trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
-        trajectory = self.trajectory(states, lags)
+    def _source_velocity(self, trajectory: np.ndarray) -> np.ndarray:
         if self.speed_limit is not None:
             trajectory[..., 3:6] = self.velocity(trajectory)
         return trajectory
@@ -338,13 +365,15 @@ class ConstantAcceleration(LinearMotionModel):
         reached at moves with the state)."""
         return super().free_motion_matrix(lags) if self.speed_limit is None else None
 
-    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+    def trajectory_jacobian(
+        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
+    ) -> np.ndarray:
         """:meth:`MotionModel.trajectory_jacobian`: the free motion's (:class:`LinearMotionModel`), or with a
         speed limit the limited one's in closed form. With r the lag the limit is reached at, h = min(s, r)
         and h0 = min(0, r), the position is p + v s + a (h s - h^2 / 2 + h0^2 / 2) and the velocity v + a h,
         r moving with the state (:meth:`_limit_lag_gradient`)."""
         if self.speed_limit is None:
-            return super().trajectory_jacobian(states, lags)
+            return super().trajectory_jacobian(states, lags, free_depth)
         lags = np.asarray(lags, dtype=float)[None, :]  # (1, K)
         unlimited, acceleration = states[:, None, 3:6], states[:, None, 6:9]  # (C, 1, 3)
         reached = self._limit_lag(states)[:, None]  # (C, 1)
@@ -365,7 +394,7 @@ class ConstantAcceleration(LinearMotionModel):
         position_weight = np.where(capped, lags - at_limit, 0.0) + held_now  # of (s - h) dh and h0 dh0
         jacobian[..., 0:3, 3:9] += position_weight[..., None, None] * through_limit
         jacobian[..., 3:6, 3:9] += capped[..., None, None] * through_limit
-        return self._folded(jacobian, states, lags[0])
+        return self._folded(jacobian, states, lags[0], free_depth)
 
     def _limit_lag_gradient(self, unlimited: np.ndarray, acceleration: np.ndarray, lag: np.ndarray) -> np.ndarray:
         """d r / d[v, a] (..., 6) of :meth:`_limit_lag`'s finite ``lag`` r, for v and a (..., 3). Where the line
@@ -403,7 +432,9 @@ class CoordinatedTurn(MotionModel):
         out[..., 3:6] = velocity
         return out
 
-    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+    def trajectory_jacobian(
+        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
+    ) -> np.ndarray:
         """:meth:`MotionModel.trajectory_jacobian`. With
         p(t) = p + D v, v(t) = B v (:func:`~aasl_gym.motion.coordinated_turn_displacement`:
         D = [[s, -c, 0], [c, s, 0], [0, 0, t]], B the rotation by omega t, s = sin(omega t) / omega,
@@ -414,11 +445,13 @@ class CoordinatedTurn(MotionModel):
         cos_a, sin_a = np.cos(angle), np.sin(angle)
         small = np.abs(angle) < 1e-4
         safe = np.where(small, 1.0, turn)
-        sine_term = np.where(small, lags * (1 - angle**2 / 6), sin_a / safe)
-        cosine_term = np.where(small, lags * (angle / 2 - angle**3 / 24), (1 - cos_a) / safe)
+        sine_term = small_angle_series(small, sin_a / safe, lambda a, t: t * (1 - a**2 / 6), angle, lags)
+        cosine_term = small_angle_series(small, (1 - cos_a) / safe, lambda a, t: t * (a / 2 - a**3 / 24), angle, lags)
         # d s / d omega and d c / d omega, by their series where omega t is small.
-        sine_rate = np.where(small, -turn * lags**3 / 3, (lags * cos_a - sine_term) / safe)
-        cosine_rate = np.where(small, lags**2 / 2 - turn**2 * lags**4 / 8, (lags * sin_a - cosine_term) / safe)
+        sine_rate = small_angle_series(small, (lags * cos_a - sine_term) / safe, lambda w, t: -w * t**3 / 3, turn, lags)
+        cosine_rate = small_angle_series(
+            small, (lags * sin_a - cosine_term) / safe, lambda w, t: t**2 / 2 - w**2 * t**4 / 8, turn, lags
+        )
         vx, vy = states[:, 3, None], states[:, 4, None]
         jacobian = np.zeros(angle.shape + (6, 7))
         jacobian[..., [0, 1, 2], [0, 1, 2]] = 1.0
@@ -432,7 +465,7 @@ class CoordinatedTurn(MotionModel):
         jacobian[..., 1, 6] = cosine_rate * vx + sine_rate * vy
         jacobian[..., 3, 6] = -lags * (sin_a * vx + cos_a * vy)
         jacobian[..., 4, 6] = lags * (cos_a * vx - sin_a * vy)
-        return self._folded(jacobian, states, lags[0])
+        return self._folded(jacobian, states, lags[0], free_depth)
 
     def _kinematic_noise(self, dt: float) -> np.ndarray:
         q = np.zeros((7, 7))

@@ -138,6 +138,19 @@ def _draw_source(rng: np.random.Generator, kind: str, source: SourceConfig, worl
     return SourceState(kind, position, velocity, acceleration, turn_rate, source.max_speed)
 
 
+def small_angle_series(small: np.ndarray, closed, series, *arguments) -> np.ndarray:
+    """``closed`` (the closed form, ``small``'s shape) with ``series(*arguments)`` where ``small``: the arguments,
+    broadcast to that shape, taken at the small angles alone. ``np.where`` would evaluate the series - its powers
+    are the slowest of NumPy's calls here - at every angle and throw most of it away. One angle (0-d) takes
+    ``np.where`` as before: NumPy's scalar power is another routine than its array power."""
+    if small.ndim == 0:
+        return np.where(small, series(*arguments), closed)
+    closed = np.array(closed, dtype=float)
+    if small.any():
+        closed[small] = series(*(np.broadcast_to(argument, small.shape)[small] for argument in arguments))
+    return closed
+
+
 def coordinated_turn_displacement(
     velocity: np.ndarray, turn_rate: np.ndarray | float, dt: np.ndarray | float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -149,10 +162,10 @@ def coordinated_turn_displacement(
     angle = np.asarray(turn_rate) * dt
     small = np.abs(angle) < 1e-4
     safe = np.where(small, 1.0, angle)
-    sin_term = np.where(small, dt * (1 - angle**2 / 6), np.sin(safe) / safe * dt)
-    cos_term = np.where(small, dt * (angle / 2 - angle**3 / 24), (1 - np.cos(safe)) / safe * dt)
+    cos_a, sin_a = np.cos(angle), np.sin(angle)  # where the closed form is taken, the angle is ``safe``'s
+    sin_term = small_angle_series(small, sin_a / safe * dt, lambda a, t: t * (1 - a**2 / 6), angle, dt)
+    cos_term = small_angle_series(small, (1 - cos_a) / safe * dt, lambda a, t: t * (a / 2 - a**3 / 24), angle, dt)
     vx, vy, vz = velocity[..., 0], velocity[..., 1], velocity[..., 2]
-    cos_a, sin_a = np.cos(angle), np.sin(angle)
     displacement = np.stack([sin_term * vx - cos_term * vy, cos_term * vx + sin_term * vy, vz * dt], axis=-1)
     new_velocity = np.stack([cos_a * vx - sin_a * vy, sin_a * vx + cos_a * vy, vz], axis=-1)
     return displacement, new_velocity

@@ -248,7 +248,7 @@ def _compiled_terms(burst: Burst, model: MotionModel, states: np.ndarray, robust
     lags = burst.times - burst.times[-1]
     motion, trajectory = model.free_motion_matrix(lags), None
     if motion is None:  # the pass cannot run the states along the model itself
-        motion, trajectory = model.trajectory_jacobian(states, lags), model.source_trajectory(states, lags)
+        trajectory, motion = model.trajectory_terms(states, lags)
     loss, normal, pull = kernels.fit_terms(states, motion, trajectory, model.fold_bounds, *_model_data(burst, robust))
     return loss, lambda rows: (normal[rows], pull[rows])
 

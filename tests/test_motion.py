@@ -14,6 +14,7 @@ from aasl_gym.motion import (
     motion_region,
     move_receiver,
     sample_source,
+    small_angle_series,
 )
 
 WORLD, SOURCE = WorldConfig(), SourceConfig()
@@ -165,3 +166,25 @@ def test_a_surface_vessel_is_kept_out_of_the_sphere_at_its_own_depth():
     )
     assert hit and position[2] == -depth and position[1] == 0.0
     assert position[0] == pytest.approx(np.sqrt(radius**2 - (depth - 0.91) ** 2))  # on the sphere, at its depth
+
+
+def test_the_small_angle_series_takes_the_values_np_where_takes(rng):
+    """Evaluated at the small angles alone, the series gives what ``np.where`` over every angle gives, to the
+    last bit (a power of NumPy's included), for a grid of turns and lags and for one angle."""
+    turn = np.concatenate([[0.0, 1e-7, 2e-6], rng.uniform(-0.1, 0.1, 5)])[:, None]
+    lags = np.linspace(-60.0, 0.0, 41)[None, :]
+    angle = turn * lags
+    small = np.abs(angle) < 1e-4
+    assert small.any() and not small.all()
+    closed = (1 - np.cos(angle)) / np.where(small, 1.0, turn) - lags
+
+    def series(w, t):
+        return t**2 / 2 - w**2 * t**4 / 8 + w * t**3 / 3
+
+    np.testing.assert_array_equal(
+        small_angle_series(small, closed, series, turn, lags), np.where(small, series(turn, lags), closed)
+    )
+    one = np.float64(1e-3) * -0.05
+    for closed_one in (2.0, np.float64(3.0)):
+        expected = np.where(np.abs(one) < 1e-4, series(one, -0.05), closed_one)
+        assert small_angle_series(np.abs(one) < 1e-4, closed_one, series, one, -0.05) == expected
