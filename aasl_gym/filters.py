@@ -298,8 +298,20 @@ class ConstantAcceleration(LinearMotionModel):
     def _advance(self, states: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
         if self.speed_limit is None:
             return self._free_advance(states, dt)
-        unlimited, acceleration = states[..., 3:6], states[..., 6:9]
-        reached = self._limit_lag(states)[..., None]
+        return self._limited_advance(states, dt, states)
+
+    def _free_trajectory(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
+        if self.speed_limit is None:
+            return super()._free_trajectory(states, lags)
+        expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), self.dim))
+        return self._limited_advance(expanded, np.asarray(lags, dtype=float)[None, :, None], states[:, None, :])
+
+    def _limited_advance(self, states: np.ndarray, dt: float | np.ndarray, own: np.ndarray) -> np.ndarray:
+        """:meth:`_advance` with the speed limit. ``own``: the states as given, ``states`` broadcast from them (or
+        themselves), where what does not move with the lag is taken - the lag the limit is reached at, once a
+        state rather than at every sample of a trajectory."""
+        unlimited, acceleration = own[..., 3:6], own[..., 6:9]
+        reached = self._limit_lag(own)[..., None]
 
         def travelled(lag):  # m from the state's position after ``lag`` s, the velocity held from ``reached`` on
             held = np.minimum(lag, reached)
