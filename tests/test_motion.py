@@ -169,21 +169,28 @@ def test_a_surface_vessel_is_kept_out_of_the_sphere_at_its_own_depth():
 
 
 def test_the_small_angle_series_takes_the_values_np_where_takes(rng):
-    """Evaluated at the small angles alone, the series gives what ``np.where`` over every angle gives, to the
-    last bit (a power of NumPy's included), for a grid of turns and lags and for one angle."""
-    turn = np.concatenate([[0.0, 1e-7, 2e-6], rng.uniform(-0.1, 0.1, 5)])[:, None]
+    """Evaluated where it is taken, the series gives what ``np.where`` over every angle gives, to the last bit (a
+    power of NumPy's included): for grids of turns and lags whose angles are some small, all small or none small,
+    and for one angle."""
+    turn = np.concatenate([[0.0, 1e-7, 2e-6], rng.uniform(0.01, 0.1, 5) * rng.choice([-1, 1], 5)])[:, None]
     lags = np.linspace(-60.0, 0.0, 41)[None, :]
-    angle = turn * lags
-    small = np.abs(angle) < 1e-4
-    assert small.any() and not small.all()
-    closed = (1 - np.cos(angle)) / np.where(small, 1.0, turn) - lags
 
     def series(w, t):
         return t**2 / 2 - w**2 * t**4 / 8 + w * t**3 / 3
 
-    np.testing.assert_array_equal(
-        small_angle_series(small, closed, series, turn, lags), np.where(small, series(turn, lags), closed)
-    )
+    grids = {
+        "some": (slice(None), slice(None)),
+        "all": (slice(0, 1), slice(None)),
+        "none": (slice(3, None), slice(0, 40)),
+    }
+    for case, (rows, columns) in grids.items():
+        w, t = turn[rows], lags[:, columns]
+        angle = w * t
+        small = np.abs(angle) < 1e-4
+        closed = (1 - np.cos(angle)) / np.where(small, 1.0, w) - t
+        assert {"some": small.any() and not small.all(), "all": small.all(), "none": not small.any()}[case]
+        expected = np.where(small, series(w, t), closed)
+        np.testing.assert_array_equal(small_angle_series(small, closed, series, w, t), expected, err_msg=case)
     one = np.float64(1e-3) * -0.05
     for closed_one in (2.0, np.float64(3.0)):
         expected = np.where(np.abs(one) < 1e-4, series(one, -0.05), closed_one)
