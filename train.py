@@ -7,10 +7,10 @@ Writes DIR/model.zip (with DIR/model.vecnormalize.pkl when the schedule normaliz
 rewards), DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints under
 DIR/checkpoints/, the best model of the periodic evaluations under DIR/best/, their learning curve in
 DIR/evaluations.csv, and SB3's records as training goes (losses, the training episodes' metrics) in
-DIR/progress.csv and, when TensorBoard is installed, under DIR/tb/. Every file but those running logs is
-written atomically. The periodic evaluation runs the same seeds each time (``schedule.eval_seed`` onward), which
-training never uses: training env i starts from seed S + i and every later episode continues that env's
-generator.
+DIR/progress.csv and, when TensorBoard is installed, under DIR/tb/ (a folder per run, as SB3 numbers them). Every
+file but those running logs is written atomically; a run into a DIR used before replaces its files. The periodic
+evaluation runs the same seeds each time (``schedule.eval_seed`` onward), which training never uses: training
+env i starts from seed S + i and every later episode continues that env's generator.
 """
 
 from __future__ import annotations

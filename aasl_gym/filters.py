@@ -168,13 +168,16 @@ class MotionModel:
         """A trajectory (..., n) with the source's own velocity in 3:6, in place (the state's, for most models)."""
         return trajectory
 
-    def trajectory_jacobian(
-        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
-    ) -> np.ndarray:  # pragma: no cover
+    def trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray) -> np.ndarray:
         """d[p, v](t_k) / d x of :meth:`trajectory`: (C, K, 6, n - 2), over the components that move the
-        trajectory (the biases do not); each model gives it in closed form. ``free_depth`` is the unfolded
-        trajectory's z (C, K) where the caller has it (:meth:`trajectory_terms`); else the fold's signs run the
-        free motion again."""
+        trajectory (the biases do not); each model gives it in closed form."""
+        return self._trajectory_jacobian(states, lags, None)
+
+    def _trajectory_jacobian(
+        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None
+    ) -> np.ndarray:  # pragma: no cover - interface
+        """:meth:`trajectory_jacobian`, the fold's signs taken from ``free_depth``, the unfolded trajectory's z
+        (C, K), where the caller has it (:meth:`trajectory_terms`), else from the free motion run again."""
         raise NotImplementedError
 
     def trajectory_terms(self, states: np.ndarray, lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -185,7 +188,7 @@ class MotionModel:
         moved = self._free_trajectory(states, lags)
         free_depth = moved[..., 2].copy()  # the fold changes it in place
         trajectory = self._fold(moved) if self.fold_trajectories else moved
-        return self._source_velocity(trajectory), self.trajectory_jacobian(states, lags, free_depth)
+        return self._source_velocity(trajectory), self._trajectory_jacobian(states, lags, free_depth)
 
     def free_motion_matrix(self, lags: np.ndarray) -> np.ndarray | None:
         """Where the free motion is linear in the state, one matrix for every state: d[p, v](t_k) / d x of it
@@ -252,9 +255,7 @@ class LinearMotionModel(MotionModel):
     """A model whose free motion is linear in the state: its trajectory Jacobian is the transition's
     matrix, the same for every state, with the fold's sign on the vertical rows."""
 
-    def trajectory_jacobian(
-        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
-    ) -> np.ndarray:
+    def _trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None) -> np.ndarray:
         """:meth:`MotionModel.trajectory_jacobian`: the transition of each moving component's unit vector,
         sign-flipped in z and v_z where a fold mirrored the state. Without folding it is a read-only view
         shared by all the states."""
@@ -307,9 +308,9 @@ class ConstantAcceleration(LinearMotionModel):
         return self._limited_advance(expanded, np.asarray(lags, dtype=float)[None, :, None], states[:, None, :])
 
     def _limited_advance(self, states: np.ndarray, dt: float | np.ndarray, own: np.ndarray) -> np.ndarray:
-        """:meth:`_advance` with the speed limit. ``own``: the states as given, ``states`` broadcast from them (or
-        themselves), where what does not move with the lag is taken - the lag the limit is reached at, once a
-        state rather than at every sample of a trajectory."""
+        """:meth:`_advance` with the speed limit. ``own``: the states before they were broadcast to ``states``
+        (C, 1, n for a trajectory's (C, K, n); else ``states`` itself): the lag each reaches the limit at is taken
+        from them, once a state rather than at every sample."""
         unlimited, acceleration = own[..., 3:6], own[..., 6:9]
         reached = self._limit_lag(own)[..., None]
 
@@ -377,15 +378,13 @@ class ConstantAcceleration(LinearMotionModel):
         reached at moves with the state)."""
         return super().free_motion_matrix(lags) if self.speed_limit is None else None
 
-    def trajectory_jacobian(
-        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
-    ) -> np.ndarray:
+    def _trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None) -> np.ndarray:
         """:meth:`MotionModel.trajectory_jacobian`: the free motion's (:class:`LinearMotionModel`), or with a
         speed limit the limited one's in closed form. With r the lag the limit is reached at, h = min(s, r)
         and h0 = min(0, r), the position is p + v s + a (h s - h^2 / 2 + h0^2 / 2) and the velocity v + a h,
         r moving with the state (:meth:`_limit_lag_gradient`)."""
         if self.speed_limit is None:
-            return super().trajectory_jacobian(states, lags, free_depth)
+            return super()._trajectory_jacobian(states, lags, free_depth)
         lags = np.asarray(lags, dtype=float)[None, :]  # (1, K)
         unlimited, acceleration = states[:, None, 3:6], states[:, None, 6:9]  # (C, 1, 3)
         reached = self._limit_lag(states)[:, None]  # (C, 1)
@@ -444,9 +443,7 @@ class CoordinatedTurn(MotionModel):
         out[..., 3:6] = velocity
         return out
 
-    def trajectory_jacobian(
-        self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None = None
-    ) -> np.ndarray:
+    def _trajectory_jacobian(self, states: np.ndarray, lags: np.ndarray, free_depth: np.ndarray | None) -> np.ndarray:
         """:meth:`MotionModel.trajectory_jacobian`. With
         p(t) = p + D v, v(t) = B v (:func:`~aasl_gym.motion.coordinated_turn_displacement`:
         D = [[s, -c, 0], [c, s, 0], [0, 0, t]], B the rotation by omega t, s = sin(omega t) / omega,

@@ -139,10 +139,11 @@ def _draw_source(rng: np.random.Generator, kind: str, source: SourceConfig, worl
 
 
 def small_angle_series(small: np.ndarray, closed, series, *arguments) -> np.ndarray:
-    """``closed`` (the closed form, ``small``'s shape) with ``series(*arguments)`` where ``small``: the arguments,
-    broadcast to that shape, taken at the small angles alone. ``np.where`` would evaluate the series - its powers
-    are the slowest of NumPy's calls here - at every angle and throw most of it away. One angle (0-d) takes
-    ``np.where`` as before: NumPy's scalar power is another routine than its array power."""
+    """``closed`` (the closed form: floats of ``small``'s shape) with ``series(*arguments)`` where ``small``, as a
+    fresh float64 array: the arguments, broadcast to that shape, taken at the small angles alone. ``np.where``
+    would evaluate the series - its powers are the slowest of NumPy's calls here - at every angle and throw most of
+    it away. One angle (0-d) takes ``np.where`` as before: NumPy's scalar power is another routine than its array
+    power."""
     if small.ndim == 0:
         return np.where(small, series(*arguments), closed)
     closed = np.array(closed, dtype=float)

@@ -13,6 +13,7 @@ must be run in that env: :attr:`LoadedPolicy.env_id` tells the evaluation which.
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import pickle
 import zipfile
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger, make_output_format
+from stable_baselines3.common.utils import get_latest_run_id
 
 from aasl_gym.config import ConfigError, EnvConfig
 from aasl_gym.io import atomic_write, atomic_write_text
@@ -237,17 +239,19 @@ def make_callbacks(
     ]
 
 
-def _training_logger(out: Path) -> Logger:
-    """SB3's logger for a run: its records (losses, the training episodes' metrics) to ``out/progress.csv``, and
-    to TensorBoard in ``out/tb`` when TensorBoard is installed. Set on the model: left to itself, SB3 makes a
-    folder in the system's temporary directory for every run without TensorBoard."""
+def _training_logger(out: Path, name: str) -> Logger:
+    """SB3's logger for a run of algorithm ``name`` (its class's): its records (losses, the training episodes'
+    metrics) to ``out/progress.csv`` and, when TensorBoard is installed, to ``out/tb/NAME_i``, numbered per run as
+    SB3 numbers them. Set on the model: left to itself, SB3 makes a folder in the system's temporary directory for
+    every run without TensorBoard."""
     formats = [make_output_format("csv", str(out))]
-    try:
-        import tensorboard  # noqa: F401
-    except ImportError:
-        pass
-    else:
-        formats.append(make_output_format("tensorboard", str(out / "tb")))
+    if importlib.util.find_spec("tensorboard") is not None:
+        try:
+            run = out / "tb" / f"{name}_{get_latest_run_id(str(out / 'tb'), name) + 1}"
+            formats.append(make_output_format("tensorboard", str(run)))
+        except BaseException:
+            formats[0].close()
+            raise
     return Logger(folder=str(out), output_formats=formats)
 
 
@@ -293,7 +297,6 @@ def train(
             )
         except TypeError as exc:
             raise ConfigError(f"section '{algo}' has a keyword {cls.__name__} does not take ({exc})") from exc
-        model.set_logger(_training_logger(out))
         model.aasl_env_id = schedule.env  # saved with every checkpoint, so evaluation runs the policy in its env
         callbacks = make_callbacks(
             out,
@@ -309,6 +312,7 @@ def train(
             f"{out}; evaluating every {schedule.eval_every:,} steps on seeds {schedule.eval_seeds[0]}-"
             f"{schedule.eval_seeds[-1]}"
         )
+        model.set_logger(_training_logger(out, cls.__name__))
         try:
             model.learn(total_timesteps=schedule.timesteps, callback=callbacks, progress_bar=True)
         finally:

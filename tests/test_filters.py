@@ -246,7 +246,10 @@ def test_trajectory_jacobian_matches_central_differences_across_folds(name, spee
         columns.append((ahead - behind)[..., 0:6] / (2 * step))
     closed_form = model.trajectory_jacobian(states, lags)
     np.testing.assert_allclose(closed_form, np.stack(columns, -1), rtol=1e-4, atol=1e-5)
-    # Together, with one run of the free motion for both (what a window fit reads): the same arrays to the last bit.
+    # Together, with one run of the free motion for both (what a window fit reads): the same arrays to the last bit;
+    # the free motion itself as every sample's own state runs it (a speed-limited CA takes its lag to the limit once).
+    expanded = np.broadcast_to(states[:, None, :], (len(states), len(lags), model.dim))
+    np.testing.assert_array_equal(model._free_trajectory(states, lags), model._advance(expanded, lags[None, :, None]))
     trajectory, jacobian = model.trajectory_terms(states, lags)
     np.testing.assert_array_equal(trajectory, model.source_trajectory(states, lags))
     np.testing.assert_array_equal(jacobian, closed_form)

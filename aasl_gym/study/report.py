@@ -66,7 +66,7 @@ def _filter_models(models: dict[str, str]) -> str:
         return "filter motion model per source motion: " + ", ".join(f"{m} `{f}`" for m, f in models.items())
     (model,) = set(models.values())
     mismatched = [m for m in models if MATCHED_FILTER.get(m) != model]
-    note = f" (not matched to the {', '.join(mismatched)} sources; `--filter-model matched` matches it)"
+    note = f" (not matched to the {', '.join(mismatched)} sources; `--filter-model matched` gives each motion its own)"
     return f"filter motion model `{model}` for every source motion" + (note if mismatched else "")
 
 
