@@ -956,65 +956,11 @@ def fit_terms(
 
 
 @numba.njit(inline="always", error_model="numpy")
-def _solve(matrix, right, out):
-    """``out`` = matrix^-1 right for one n x n system: Gaussian elimination with partial pivoting, in place."""
-    dim = right.shape[0]
-    for a in range(dim):
-        pivot = a
-        for r in range(a + 1, dim):
-            if abs(matrix[r, a]) > abs(matrix[pivot, a]):
-                pivot = r
-        if pivot != a:
-            for b in range(dim):
-                matrix[a, b], matrix[pivot, b] = matrix[pivot, b], matrix[a, b]
-            right[a], right[pivot] = right[pivot], right[a]
-        for r in range(a + 1, dim):
-            factor = matrix[r, a] / matrix[a, a]
-            for b in range(a, dim):
-                matrix[r, b] -= factor * matrix[a, b]
-            right[r] -= factor * right[a]
-    for a in range(dim - 1, -1, -1):
-        total = right[a]
-        for b in range(a + 1, dim):
-            total -= matrix[a, b] * out[b]
-        out[a] = total / matrix[a, a]
-
-
-@_compile
-def _damped_steps(normal, damping, gradient, steps):
-    """``steps`` (C, n) = -(N + lambda diag(N))^-1 g for each start's normal matrix N (C, n, n), damping lambda (C,)
-    and gradient g (C, n)."""
-    count, dim = gradient.shape
-    matrix, right = np.empty((dim, dim)), np.empty(dim)
-    for c in range(count):
-        for a in range(dim):
-            for b in range(dim):
-                matrix[a, b] = normal[c, a, b]
-            matrix[a, a] += damping[c] * normal[c, a, a]
-            right[a] = -gradient[c, a]
-        _solve(matrix, right, steps[c])
-
-
-def damped_steps(normal: np.ndarray, damping: np.ndarray, gradient: np.ndarray) -> np.ndarray:
-    """Levenberg-Marquardt's steps (C, n) with Marquardt's scaling: -(N + lambda diag(N))^-1 g for normal matrices
-    N (C, n, n), dampings lambda (C,) and gradients g (C, n); the same as ``np.linalg.solve`` to rounding, without
-    its per-call overhead on a few hundred 8 x 8 systems."""
-    steps = np.empty(gradient.shape)
-    _damped_steps(
-        np.ascontiguousarray(normal, dtype=float),
-        np.asarray(damping, float),
-        np.ascontiguousarray(gradient, dtype=float),
-        steps,
-    )
-    return steps
-
-
-@numba.njit(inline="always", error_model="numpy")
 def _lane_solves(matrix, right, width, pivot, work, out):
-    """:func:`_solve` for each of a block's ``width`` lanes at once: ``out`` (n, B) = matrix^-1 right for the systems
-    ``matrix`` (n, n, B) and ``right`` (n, B), in place; ``pivot`` (B,) and ``work`` (2, B) are scratch. Each lane
-    takes the operations :func:`_solve` takes on its system, in its order (the row swaps as selects), so that the
-    loops run over the lanes and vectorise."""
+    """``out`` (n, B) = matrix^-1 right for each of ``width`` lanes' systems ``matrix`` (n, n, B) and ``right`` (n, B),
+    in place: Gaussian elimination with partial pivoting, every lane at once (the row swaps as selects), so that the
+    loops run over the lanes and vectorise; ``pivot`` (B,) and ``work`` (2, B) are scratch. Each lane takes the
+    operations one system solved alone takes, in their order (``tests/test_kernels.py``)."""
     dim = right.shape[0]
     best, factor = work[0], work[1]
     for a in range(dim):
@@ -1050,6 +996,38 @@ def _lane_solves(matrix, right, width, pivot, work, out):
                 total[i] -= matrix[a, b, i] * out[b, i]
         for i in range(width):
             out[a, i] = total[i] / matrix[a, a, i]
+
+
+@_compile
+def _damped_steps(normal, damping, gradient, steps):
+    """``steps`` (C, n) = -(N + lambda diag(N))^-1 g for each start's normal matrix N (C, n, n), damping lambda (C,)
+    and gradient g (C, n): every start's system a lane of :func:`_lane_solves`."""
+    count, dim = gradient.shape
+    matrix, right, out = np.empty((dim, dim, count)), np.empty((dim, count)), np.empty((dim, count))
+    for c in range(count):
+        for a in range(dim):
+            for b in range(dim):
+                matrix[a, b, c] = normal[c, a, b]
+            matrix[a, a, c] += damping[c] * normal[c, a, a]
+            right[a, c] = -gradient[c, a]
+    _lane_solves(matrix, right, count, np.empty(count, dtype=np.int64), np.empty((2, count)), out)
+    for c in range(count):
+        for a in range(dim):
+            steps[c, a] = out[a, c]
+
+
+def damped_steps(normal: np.ndarray, damping: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+    """Levenberg-Marquardt's steps (C, n) with Marquardt's scaling: -(N + lambda diag(N))^-1 g for normal matrices
+    N (C, n, n), dampings lambda (C,) and gradients g (C, n); the same as ``np.linalg.solve`` to rounding, without
+    its per-call overhead on a few hundred 8 x 8 systems."""
+    steps = np.empty(gradient.shape)
+    _damped_steps(
+        np.ascontiguousarray(normal, dtype=float),
+        np.asarray(damping, float),
+        np.ascontiguousarray(gradient, dtype=float),
+        steps,
+    )
+    return steps
 
 
 @_compile

@@ -206,19 +206,42 @@ def test_damped_steps_solve_what_numpy_solves():
     np.testing.assert_allclose(kernels.damped_steps(normal, damping, gradient), expected[..., 0], rtol=1e-9, atol=1e-12)
 
 
+def _solve_alone(matrix: list[list[float]], right: list[float]) -> list[float]:
+    """matrix^-1 right for one system, by Gaussian elimination with partial pivoting in Python floats: the operations
+    ``kernels._lane_solves`` takes on each lane, one system at a time."""
+    dim = len(right)
+    for a in range(dim):
+        pivot = a
+        for r in range(a + 1, dim):
+            if abs(matrix[r][a]) > abs(matrix[pivot][a]):
+                pivot = r
+        matrix[a], matrix[pivot] = matrix[pivot], matrix[a]
+        right[a], right[pivot] = right[pivot], right[a]
+        for r in range(a + 1, dim):
+            factor = matrix[r][a] / matrix[a][a]
+            for b in range(a, dim):
+                matrix[r][b] -= factor * matrix[a][b]
+            right[r] -= factor * right[a]
+    out = [0.0] * dim
+    for a in range(dim - 1, -1, -1):
+        total = right[a]
+        for b in range(a + 1, dim):
+            total -= matrix[a][b] * out[b]
+        out[a] = total / matrix[a][a]
+    return out
+
+
 @pytest.mark.parametrize("dim", [3, 8], ids=["grid-velocity", "window-fit"])
 def test_the_lanes_solve_as_each_system_alone_to_the_last_bit(dim):
-    """Every lane's system solved at once (``_lane_solves``: the window fit's and LC-MAP's grid's steps) is each
-    system solved alone (``_solve``) to the last bit, row swaps included, so that a start's fit does not depend on
+    """Every lane's system solved at once (``_lane_solves``: the window fit's, LC-MAP's grid's and ``damped_steps``'
+    steps) is each system solved alone to the last bit, row swaps included, so that a start's fit does not depend on
     the block or lane it ran in; and both are what NumPy solves, to rounding."""
     rng = np.random.default_rng(8)
     lanes = 13  # not a multiple of the vector width
     matrices, rights = rng.normal(size=(lanes, dim, dim)), rng.normal(size=(lanes, dim))
     matrices[::2] += 10 * np.eye(dim)  # diagonally dominant: no row swap; the others swap rows
     matrices[1, 0, 0] = 0.0  # no first pivot: a swap for certain
-    alone = np.empty((lanes, dim))
-    for i in range(lanes):
-        kernels._solve(matrices[i].copy(), rights[i].copy(), alone[i])
+    alone = np.array([_solve_alone(matrices[i].tolist(), rights[i].tolist()) for i in range(lanes)])
     together = np.empty((dim, lanes))
     kernels._lane_solves(
         np.ascontiguousarray(matrices.transpose(1, 2, 0)), np.ascontiguousarray(rights.T), lanes,
