@@ -533,16 +533,13 @@ def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> lis
     means, covariances = kernels.sigma_moments(
         model.transition(sigmas, dt), first.Wm, first.Wc, model.process_noise(dt)
     )
-    reflected = [model.reflect(mean, covariance) for mean, covariance in zip(means, covariances)]
-    reflected_means, reflected_covariances = (np.stack(parts) for parts in zip(*reflected))
-    predicted_sigmas, predicted_valid = kernels.sigma_points(reflected_means, reflected_covariances, spread)
+    if model.depth_bounds is not None:  # without bounds nothing reflects: no loop over the filters
+        reflected = [model.reflect(mean, covariance) for mean, covariance in zip(means, covariances)]
+        means, covariances = (np.stack(parts) for parts in zip(*reflected))
+    predicted_sigmas, predicted_valid = kernels.sigma_points(means, covariances, spread)
     kept = [i for i in range(len(filters)) if valid[i] and predicted_valid[i]]
     for i in kept:
-        filters[i].x, filters[i].P, filters[i].sigmas_f = (
-            reflected_means[i],
-            reflected_covariances[i],
-            predicted_sigmas[i],
-        )
+        filters[i].x, filters[i].P, filters[i].sigmas_f = means[i], covariances[i], predicted_sigmas[i]
     return kept
 
 

@@ -368,6 +368,115 @@ def _frame_block(rows: np.ndarray, fixed: np.ndarray, offsets: np.ndarray, propa
 
 
 @_compile
+def _frame_and_direct_paths(position, velocity, mobile, mobile_velocity, fixed, offsets, channel, paths, direct):
+    """:func:`_frame_block`'s phasor rows ``paths`` (11, S, N) and :func:`_direct_loop`'s rows ``direct`` (26, N) for
+    the N states ``position`` and ``velocity`` (N, 3 each) and one mobile receiver (3,), in one pass: each frame sample
+    as :func:`_frame_block` places it (x + tau x'), each number as the two loops compute it."""
+    fx, fy, fz = fixed[0], fixed[1], fixed[2]
+    depth, surface_gain, bed_gain, wavenumber = channel[0], channel[1], channel[2], channel[3]
+    for s in range(offsets.shape[0]):
+        tau = offsets[s]
+        mx, my = mobile[0] + tau * mobile_velocity[0], mobile[1] + tau * mobile_velocity[1]
+        mz = mobile[2] + tau * mobile_velocity[2]
+        for i in range(position.shape[0]):
+            sx, sy = position[i, 0] + tau * velocity[i, 0], position[i, 1] + tau * velocity[i, 1]
+            sz = position[i, 2] + tau * velocity[i, 2]
+            row = _pair(sx, sy, sz, mx, my, mz, fx, fy, fz, depth, surface_gain, bed_gain, wavenumber)
+            for r in range(11):
+                paths[r, s, i] = row[r]
+    rows = np.empty((12, position.shape[0]))
+    for i in range(position.shape[0]):
+        for c in range(3):
+            rows[c, i], rows[3 + c, i] = position[i, c], mobile[c]
+            rows[6 + c, i], rows[9 + c, i] = velocity[i, c], mobile_velocity[c]
+    _direct_loop(rows, fixed, direct)
+
+
+def frame_and_direct(
+    position, velocity, mobile, mobile_velocity, fixed, offsets: np.ndarray, propagation
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`frame_phasor`'s [RD, RRD] and receiver Jacobian and :func:`direct_path`'s, for source states (..., 3
+    each; at most ``CHUNK`` of them) and one mobile receiver (3,): the same numbers to the last bit, from one pass
+    over the states (an unscented filter bank's sigma points take both every step)."""
+    shape = np.shape(position)[:-1]
+    position = np.ascontiguousarray(position, dtype=float).reshape(-1, 3)
+    count = position.shape[0]
+    if count > CHUNK:
+        raise ValueError(f"at most {CHUNK} states a call, got {count}")
+    offsets, p = np.asarray(offsets, dtype=float), propagation
+    channel = np.array([p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber], dtype=float)
+    paths, direct = np.empty((11, len(offsets), count)), np.empty((26, count))
+    _frame_and_direct_paths(
+        position, np.ascontiguousarray(velocity, dtype=float).reshape(-1, 3), np.array(mobile, dtype=float).reshape(3),
+        np.array(mobile_velocity, dtype=float).reshape(3), _fixed_point(fixed), offsets, channel, paths, direct,
+    )  # fmt: skip
+    frame = np.empty((26, count))
+    _frame_combine(_apparent(paths, p.wavenumber), paths, offsets, 2 * np.pi / p.wavenumber, frame)
+    frame_columns, direct_columns = frame.T, direct.T
+    return (
+        frame_columns[:, 0:2].reshape(shape + (2,)),
+        frame_columns[:, 14:26].reshape(shape + (2, 6)),
+        direct_columns[:, 0:2].reshape(shape + (2,)),
+        direct_columns[:, 14:26].reshape(shape + (2, 6)),
+    )
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _pair_dot6(a, b):
+    """sum_q a[q] b[q] over six numbers in NumPy's ``einsum`` order for a contraction of six: two running sums,
+    the even terms' and the odd terms', added at the end (``tests/test_kernels.py`` holds the two equal)."""
+    even = a[0] * b[0] + a[2] * b[2] + a[4] * b[4]
+    odd = a[1] * b[1] + a[3] * b[3] + a[5] * b[5]
+    return even + odd
+
+
+@_compile
+def _ripple_measurements(frame, direct, receiver, offsets, period, scales, values, noise):
+    """See :func:`ripple_measurements`; ``scales`` (6,) are the navigation sd per receiver coordinate."""
+    half = 0.5 * period
+    rd_row, rrd_row = np.empty(6), np.empty(6)
+    for h in range(frame.shape[0]):
+        centre_rd = frame[h, 0, 0] - direct[h, 0, 0]  # the RRD's correction is not wrapped: no centre needed
+        for s in range(frame.shape[1]):
+            offset = (frame[h, s, 0] - direct[h, s, 0] - centre_rd + half) % period - half
+            values[h, s, 0] = direct[h, s, 0] + (centre_rd + offset) + offsets[h, s, 0]
+            values[h, s, 1] = direct[h, s, 1] + (frame[h, s, 1] - direct[h, s, 1]) + offsets[h, s, 1]
+        for q in range(6):
+            rd_row[q], rrd_row[q] = receiver[h, 0, q] * scales[q], receiver[h, 1, q] * scales[q]
+        # No ripple noise here: zero plus the navigation term, as the general route adds them.
+        noise[h, 0, 0] = 0.0 + _pair_dot6(rd_row, rd_row)
+        noise[h, 1, 1] = 0.0 + _pair_dot6(rrd_row, rrd_row)
+        noise[h, 0, 1] = noise[h, 1, 0] = 0.0 + _pair_dot6(rd_row, rrd_row)
+
+
+def ripple_measurements(
+    frame: np.ndarray,
+    direct: np.ndarray,
+    receiver: np.ndarray,
+    offsets: np.ndarray,
+    period: float,
+    navigation_sd: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """A bank's filter measurements under the phasor model where every filter resolves the ripple: from the frame
+    model's [RD, RRD] ``frame`` and the direct path's ``direct`` at the sigma points (H, S, 2), each point's multipath
+    correction (frame - direct) taken within half a ``period`` (m) of the central point's, plus the state's offsets
+    b_p, b_v (``offsets``, H, S, 2); and the navigation term H_r Sigma_r H_r^T (H, 2, 2) of the frame model's receiver
+    Jacobian at each mean (``receiver``, H, 2, 6) for ``navigation_sd`` (m, m/s). The numbers of
+    :meth:`aasl_gym.estimator.SourceTracker._sigma_model`'s NumPy route with
+    :func:`aasl_gym.measurement_models.receiver_noise`, to the last bit, in one call."""
+    count, samples = frame.shape[:2]
+    values, noise = np.empty((count, samples, 2)), np.empty((count, 2, 2))
+    position_sd, velocity_sd = navigation_sd
+    scales = np.array((position_sd,) * 3 + (velocity_sd,) * 3, dtype=float)
+    _ripple_measurements(
+        np.ascontiguousarray(frame, dtype=float), np.ascontiguousarray(direct, dtype=float),
+        np.ascontiguousarray(receiver, dtype=float), np.ascontiguousarray(offsets, dtype=float), float(period),
+        scales, values, noise,
+    )  # fmt: skip
+    return values, noise
+
+
+@_compile
 def _tone_angles(relative, relative_velocity, scales, offsets, times, mixer_phase, tone, angles, pressures):
     """Each path's (P), receiver's (R) and sample's (N) angle after the mixer and pressure (``angles``,
     ``pressures``, (P, R, N)) as :func:`aasl_gym.synthesis.received_pressure` computes them, operation for

@@ -14,8 +14,9 @@ from aasl_gym import estimator, geometry
 from aasl_gym.config import EnvConfig, load_config
 from aasl_gym.env import AASLEnv
 from aasl_gym.estimator import MeasurementHistory
+from aasl_gym.filters import merwe_sigma_points
 from aasl_gym.initializers import Burst, subsample
-from aasl_gym.measurement_models import direct_measurement
+from aasl_gym.measurement_models import FrameAveragedPhasor, direct_measurement, receiver_noise
 from aasl_gym.search import LEAD_IN, TRACK_SEARCH_GATE
 from aasl_gym.study.paper import make_study
 from aasl_gym.window import WindowFit, fit_window
@@ -725,3 +726,25 @@ def test_a_singular_fit_information_gives_nan_not_an_error():
     assert np.isnan(covariances[1]).all()
     expected = _covariances(information[[0, 2]], 1.5)
     assert np.array_equal(covariances[[0, 2]], expected)
+
+
+def test_the_banks_compiled_measurement_step_is_the_general_route_to_the_last_bit(monkeypatch):
+    """The default world's filters (signal mode, the frame-averaged phasor model) take their measurements at the
+    sigma points in one compiled route where every filter resolves the ripple: the same numbers as
+    :meth:`SourceTracker._sigma_model` with the navigation term, the route a filter still too wide for the ripple
+    takes."""
+    tracker = AASLEnv(EnvConfig(), patrol="helix").tracker
+    assert tracker.ripple and isinstance(tracker.measurement_function, FrameAveragedPhasor)
+    rng = np.random.default_rng(8)
+    means = rng.normal([4.0, -6.0, -11.0, 0.2, -0.1, 0.0, 1.0, 0.0], [3, 3, 3, 0.3, 0.3, 0.05, 2, 0.1], (3, 8))
+    sigmas = np.stack([merwe_sigma_points(mean, np.diag(rng.uniform(0.01, 0.2, 8)), 2.0) for mean in means])
+    mobile, mobile_velocity = np.array([10.0, 4.0, -5.0]), np.array([0.5, -0.8, 0.0])
+    resolved = np.ones(3, dtype=bool)
+    compiled_calls = []
+    compiled = estimator.kernels.ripple_measurements
+    monkeypatch.setattr(estimator.kernels, "ripple_measurements", lambda *a: compiled_calls.append(1) or compiled(*a))
+    values, noise = tracker._sigma_measurements(sigmas, np.zeros(3), resolved, mobile, mobile_velocity)
+    assert compiled_calls  # the compiled route ran
+    z, ripple, jacobian = tracker._sigma_model(sigmas, np.zeros(3), resolved, mobile, mobile_velocity, tracker.fixed)
+    np.testing.assert_array_equal(values, z + sigmas[..., -2:])
+    np.testing.assert_array_equal(noise, ripple + receiver_noise(jacobian, *tracker.navigation_sd))

@@ -171,6 +171,8 @@ def test_every_loop_is_compiled():
         "_sigma_points",
         "_sigma_moments",
         "_unscented_update",
+        "_frame_and_direct_paths",
+        "_ripple_measurements",
     )
     for name in loops + compiled:
         assert isinstance(getattr(kernels, name), numba.core.dispatcher.Dispatcher), name
@@ -280,3 +282,56 @@ def test_peak_counts_count_each_part_at_its_own_peak():
     np.testing.assert_array_equal(counts, expected)
     assert counts[0, 1, 0] == 3
     np.testing.assert_array_equal(kernels.peak_counts(np.array([[1, -3, 3, 2]])), [[2]])
+
+
+@pytest.mark.parametrize("bank", [1, 5], ids=["one-filter", "five-filters"])
+def test_the_frame_model_and_the_direct_path_in_one_pass_are_the_two_passes_to_the_last_bit(bank):
+    """A bank's sigma points (bank x 17) through :func:`kernels.frame_and_direct` against :func:`kernels.frame_phasor`
+    and :func:`kernels.direct_path` called apart: every number equal."""
+    rng = np.random.default_rng(5)
+    position = rng.normal([5.0, -8.0, -12.0], 3.0, (bank, 17, 3))
+    velocity = rng.normal(0, 0.5, (bank, 17, 3))
+    mobile, mobile_velocity = np.array([12.0, 3.0, -4.0]), np.array([0.3, -0.9, 0.1])
+    offsets = frame_offsets(0.2, 3)
+    state = (position, velocity, mobile, mobile_velocity, FIXED)
+    frame, frame_receiver, direct, direct_receiver = kernels.frame_and_direct(*state, offsets, PROPAGATION)
+    expected_frame, _, expected_frame_receiver = kernels.frame_phasor(*state, offsets, PROPAGATION)
+    expected_direct, _, expected_direct_receiver = kernels.direct_path(*state)
+    for got, expected in [
+        (frame, expected_frame),
+        (frame_receiver, expected_frame_receiver),
+        (direct, expected_direct),
+        (direct_receiver, expected_direct_receiver),
+    ]:
+        assert got.shape == expected.shape
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_the_six_term_sum_is_numpys_einsum_to_the_last_bit():
+    """R_eff's navigation term sums six products in einsum's order: rows of every magnitude, as
+    :func:`receiver_noise` takes them."""
+    rng = np.random.default_rng(6)
+    jacobian = rng.normal(size=(400, 2, 6)) * 10.0 ** rng.uniform(-4, 4, (400, 2, 6))
+    expected = receiver_noise(jacobian, 0.05, 0.02)
+    scales = np.array((0.05,) * 3 + (0.02,) * 3)
+    for row, noise in zip(jacobian * scales, expected):
+        assert kernels._pair_dot6(row[0], row[0]) == noise[0, 0]
+        assert kernels._pair_dot6(row[1], row[1]) == noise[1, 1]
+        assert kernels._pair_dot6(row[0], row[1]) == noise[0, 1]
+
+
+def test_the_ripple_measurements_are_the_numpy_route_to_the_last_bit():
+    """:func:`kernels.ripple_measurements` against the NumPy spelling of the tracker's route (the correction within
+    half a period of the central point's, the offsets added, :func:`receiver_noise` at the mean), corrections that
+    cross the period's edges included."""
+    rng = np.random.default_rng(7)
+    period = 1.5
+    direct = rng.normal(0, 20, (4, 17, 2))
+    frame = direct + rng.uniform(-3 * period, 3 * period, (4, 17, 2))
+    receiver, offsets = rng.normal(size=(4, 2, 6)), rng.normal(0, 5, (4, 17, 2))
+    values, noise = kernels.ripple_measurements(frame, direct, receiver, offsets, period, (0.05, 0.02))
+    correction = frame - direct
+    centre = correction[:, :1]
+    correction[..., 0] = centre[..., 0] + geometry.wrap_to_period(correction[..., 0] - centre[..., 0], period)
+    np.testing.assert_array_equal(values, (direct + correction) + offsets)
+    np.testing.assert_array_equal(noise, np.zeros((4, 2, 2)) + receiver_noise(receiver, 0.05, 0.02))
