@@ -529,15 +529,21 @@ def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> lis
         return []
     first = filters[0]
     model, spread = first.model, first.spread
-    sigmas, valid = kernels.sigma_points(np.stack([f.x for f in filters]), np.stack([f.P for f in filters]), spread)
-    means, covariances = kernels.sigma_moments(
-        model.transition(sigmas, dt), first.Wm, first.Wc, model.process_noise(dt)
-    )
-    if model.depth_bounds is not None:  # without bounds nothing reflects: no loop over the filters
-        reflected = [model.reflect(mean, covariance) for mean, covariance in zip(means, covariances)]
-        means, covariances = (np.stack(parts) for parts in zip(*reflected))
-    predicted_sigmas, predicted_valid = kernels.sigma_points(means, covariances, spread)
-    kept = [i for i in range(len(filters)) if valid[i] and predicted_valid[i]]
+    gaussians = np.stack([f.x for f in filters]), np.stack([f.P for f in filters])
+    noise = model.process_noise(dt)
+    if isinstance(model, ConstantVelocity) and model.depth_bounds is None:  # nothing reflects: one compiled call
+        means, covariances, predicted_sigmas, valid = kernels.constant_velocity_prediction(
+            *gaussians, spread, dt, first.Wm, first.Wc, noise
+        )
+    else:
+        sigmas, valid = kernels.sigma_points(*gaussians, spread)
+        means, covariances = kernels.sigma_moments(model.transition(sigmas, dt), first.Wm, first.Wc, noise)
+        if model.depth_bounds is not None:
+            reflected = [model.reflect(mean, covariance) for mean, covariance in zip(means, covariances)]
+            means, covariances = (np.stack(parts) for parts in zip(*reflected))
+        predicted_sigmas, predicted_valid = kernels.sigma_points(means, covariances, spread)
+        valid = valid & predicted_valid
+    kept = [i for i in range(len(filters)) if valid[i]]
     for i in kept:
         filters[i].x, filters[i].P, filters[i].sigmas_f = means[i], covariances[i], predicted_sigmas[i]
     return kept

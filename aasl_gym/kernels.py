@@ -49,7 +49,11 @@ cache; 26 -> 9 ms an LC-MAP run; since session 41 in blocks of candidates, each 
 window fit, 45 % less again). The unscented filters' sigma points, moments and update (:func:`sigma_points`,
 :func:`sigma_moments`, :func:`unscented_update`), a channel's clipping count (:func:`peak_counts`), the reward's
 Fisher information step (:func:`information_step`) and the greedy planner's horizon (:func:`horizon_information`)
-are compiled too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step.
+are compiled too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step. So is a filter bank's
+measurement step under the phasor model (:func:`frame_and_direct`, :func:`ripple_measurements`: the frame model and
+the direct path at every sigma point in one pass, the ripple's correction and R_eff's navigation term in another,
+NumPy's arctangent between them), to the last bit of the NumPy route it replaces (session 43: a lone filter's step
+had spent more on thirty calls' set-up than on the models).
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
 21 seconds, most of it the window fit's pass), later processes load it (about 0.15 s, at the first call).
@@ -1561,33 +1565,40 @@ def unscented_update(
     return float(det), state, updated, nis, out[first : first + 2], out[first + 2 :].reshape(2, 2)
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _points_of(h, means, covariances, spread, out, ok, root):
+    """Gaussian h's sigma points into ``out[h]`` and whether its P was positive definite into ``ok[h]``: the Cholesky
+    factor of the spread P by the Cholesky-Banachiewicz recursion (``root`` (n, n) is scratch)."""
+    dim = means.shape[1]
+    ok[h] = True
+    for j in range(dim):
+        total = spread * covariances[h, j, j]
+        for k in range(j):
+            total -= root[j, k] * root[j, k]
+        if not total > 0.0:
+            ok[h] = False
+            break
+        root[j, j] = math.sqrt(total)
+        for i in range(j + 1, dim):
+            total = spread * covariances[h, i, j]
+            for k in range(j):
+                total -= root[i, k] * root[j, k]
+            root[i, j] = total / root[j, j]
+    for a in range(dim):
+        out[h, 0, a] = means[h, a]
+    for i in range(dim):  # sigma point 1 + i is x plus column i of the lower factor, 1 + n + i x minus it
+        for a in range(dim):
+            column = root[a, i] if a >= i and ok[h] else 0.0
+            out[h, 1 + i, a] = means[h, a] + column
+            out[h, 1 + dim + i, a] = means[h, a] - column
+
+
 @_compile
 def _sigma_points(means, covariances, spread, out, ok):
-    """See :func:`sigma_points`: the Cholesky factor of each spread P by the Cholesky-Banachiewicz recursion."""
-    count, dim = means.shape
-    root = np.zeros((dim, dim))
-    for h in range(count):
-        ok[h] = True
-        for j in range(dim):
-            total = spread * covariances[h, j, j]
-            for k in range(j):
-                total -= root[j, k] * root[j, k]
-            if not total > 0.0:
-                ok[h] = False
-                break
-            root[j, j] = math.sqrt(total)
-            for i in range(j + 1, dim):
-                total = spread * covariances[h, i, j]
-                for k in range(j):
-                    total -= root[i, k] * root[j, k]
-                root[i, j] = total / root[j, j]
-        for a in range(dim):
-            out[h, 0, a] = means[h, a]
-        for i in range(dim):  # sigma point 1 + i is x plus column i of the lower factor, 1 + n + i x minus it
-            for a in range(dim):
-                column = root[a, i] if a >= i and ok[h] else 0.0
-                out[h, 1 + i, a] = means[h, a] + column
-                out[h, 1 + dim + i, a] = means[h, a] - column
+    """See :func:`sigma_points`."""
+    root = np.zeros((means.shape[1], means.shape[1]))
+    for h in range(means.shape[0]):
+        _points_of(h, means, covariances, spread, out, ok, root)
 
 
 def sigma_points(means: np.ndarray, covariances: np.ndarray, spread: float) -> tuple[np.ndarray, np.ndarray]:
@@ -1603,23 +1614,69 @@ def sigma_points(means: np.ndarray, covariances: np.ndarray, spread: float) -> t
     return out, ok
 
 
+@numba.njit(inline="always", error_model="numpy")
+def _moments_of(h, points, mean_weights, cov_weights, noise, means, covariances):
+    """Set h's unscented mean and covariance plus ``noise`` into ``means[h]`` and ``covariances[h]``."""
+    size, dim = points.shape[1], points.shape[2]
+    for a in range(dim):
+        total = 0.0
+        for s in range(size):
+            total += mean_weights[s] * points[h, s, a]
+        means[h, a] = total
+    for a in range(dim):
+        for b in range(a, dim):
+            total = 0.0
+            for s in range(size):
+                total += cov_weights[s] * (points[h, s, a] - means[h, a]) * (points[h, s, b] - means[h, b])
+            covariances[h, a, b] = total + noise[a, b]
+            covariances[h, b, a] = total + noise[b, a]
+
+
 @_compile
 def _sigma_moments(points, mean_weights, cov_weights, noise, means, covariances):
     """See :func:`sigma_moments`."""
+    for h in range(points.shape[0]):
+        _moments_of(h, points, mean_weights, cov_weights, noise, means, covariances)
+
+
+@_compile
+def _constant_velocity_prediction(means, covariances, spread, dt, mean_weights, cov_weights, noise, out):
+    """See :func:`constant_velocity_prediction`; ``out`` holds the means, covariances, new points and their flags."""
+    predicted_means, predicted_covariances, points, ok = out
     count, size, dim = points.shape
+    root = np.zeros((dim, dim))
+    moved, moved_ok = np.empty((1, size, dim)), np.empty(1, dtype=np.bool_)
     for h in range(count):
-        for a in range(dim):
-            total = 0.0
-            for s in range(size):
-                total += mean_weights[s] * points[h, s, a]
-            means[h, a] = total
-        for a in range(dim):
-            for b in range(a, dim):
-                total = 0.0
-                for s in range(size):
-                    total += cov_weights[s] * (points[h, s, a] - means[h, a]) * (points[h, s, b] - means[h, b])
-                covariances[h, a, b] = total + noise[a, b]
-                covariances[h, b, a] = total + noise[b, a]
+        _points_of(h, means, covariances, spread, points, ok, root)
+        for s in range(size):
+            for a in range(dim):
+                moved[0, s, a] = points[h, s, a]
+            for a in range(3):  # x + dt v, as ConstantVelocity moves its states
+                moved[0, s, a] += dt * points[h, s, 3 + a]
+        _moments_of(
+            0, moved, mean_weights, cov_weights, noise, predicted_means[h : h + 1], predicted_covariances[h : h + 1]
+        )
+        _points_of(h, predicted_means, predicted_covariances, spread, points, moved_ok, root)
+        ok[h] = ok[h] and moved_ok[0]
+
+
+def constant_velocity_prediction(
+    means: np.ndarray, covariances: np.ndarray, spread: float, dt: float, mean_weights, cov_weights, noise: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """H unscented predictions of a constant-velocity state (position, velocity first) ``dt`` seconds on in one call:
+    :func:`sigma_points`, the motion x + dt v, :func:`sigma_moments` with the process noise ``noise`` and the predicted
+    Gaussians' :func:`sigma_points`, to the last bit. Returns the predicted means (H, n), covariances (H, n, n),
+    sigma points (H, 2n+1, n) and whether both covariances were positive definite (H,)."""
+    count, dim = np.shape(means)
+    out = (
+        np.empty((count, dim)), np.empty((count, dim, dim)), np.empty((count, 2 * dim + 1, dim)),
+        np.empty(count, dtype=np.bool_),
+    )  # fmt: skip
+    _constant_velocity_prediction(
+        np.ascontiguousarray(means, dtype=float), np.ascontiguousarray(covariances, dtype=float), float(spread),
+        float(dt), mean_weights, cov_weights, np.ascontiguousarray(noise, dtype=float), out,
+    )  # fmt: skip
+    return out
 
 
 def sigma_moments(

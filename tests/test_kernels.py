@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from aasl_gym import geometry, kernels, synthesis
+from aasl_gym.config import FilterConfig
+from aasl_gym.filters import ConstantVelocity, merwe_weights
 from aasl_gym.initializers import inverse_cholesky, whiten
 from aasl_gym.measurement_models import (
     FrameAveragedPhasor,
@@ -173,6 +175,7 @@ def test_every_loop_is_compiled():
         "_unscented_update",
         "_frame_and_direct_paths",
         "_ripple_measurements",
+        "_constant_velocity_prediction",
     )
     for name in loops + compiled:
         assert isinstance(getattr(kernels, name), numba.core.dispatcher.Dispatcher), name
@@ -335,3 +338,28 @@ def test_the_ripple_measurements_are_the_numpy_route_to_the_last_bit():
     correction[..., 0] = centre[..., 0] + geometry.wrap_to_period(correction[..., 0] - centre[..., 0], period)
     np.testing.assert_array_equal(values, (direct + correction) + offsets)
     np.testing.assert_array_equal(noise, np.zeros((4, 2, 2)) + receiver_noise(receiver, 0.05, 0.02))
+
+
+def test_the_constant_velocity_prediction_in_one_call_is_the_three_calls_to_the_last_bit():
+    """A bank of CV filters predicted in one compiled call against :func:`kernels.sigma_points`, the model's own
+    transition, :func:`kernels.sigma_moments` and :func:`kernels.sigma_points` again: every number equal, and a filter
+    whose covariance is not positive definite flagged as the three calls flag it."""
+    model = ConstantVelocity(FilterConfig())
+    wm, wc, spread = merwe_weights(model.dim, 0.5, 2.0, 0.0)
+    rng = np.random.default_rng(9)
+    means = rng.normal(0, 5, (4, model.dim))
+    roots = rng.normal(0, 0.3, (4, model.dim, model.dim))
+    covariances = roots @ np.swapaxes(roots, 1, 2) + 1e-3 * np.eye(model.dim)
+    covariances[2, 0, 0] = -1.0  # not positive definite
+    noise = model.process_noise(0.2)
+    predicted_means, predicted_covariances, points, valid = kernels.constant_velocity_prediction(
+        means, covariances, spread, 0.2, wm, wc, noise
+    )
+    sigmas, first_valid = kernels.sigma_points(means, covariances, spread)
+    expected_means, expected_covariances = kernels.sigma_moments(model.transition(sigmas, 0.2), wm, wc, noise)
+    expected_points, second_valid = kernels.sigma_points(expected_means, expected_covariances, spread)
+    np.testing.assert_array_equal(valid, first_valid & second_valid)
+    assert valid.tolist() == [True, True, False, True]
+    np.testing.assert_array_equal(predicted_means, expected_means)
+    np.testing.assert_array_equal(predicted_covariances, expected_covariances)
+    np.testing.assert_array_equal(points[valid], expected_points[valid])
