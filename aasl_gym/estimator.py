@@ -106,6 +106,7 @@ from aasl_gym.filters import (
     make_motion_model,
     merwe_weights,
     predict_together,
+    update_together,
     whole_periods,
 )
 from aasl_gym.fisher import information_prior
@@ -1076,14 +1077,9 @@ class SourceTracker:
             z = self._reanchor(z, predicted[0].ukf, sigma_z[0], noise + extra[0])
         self.main_measurement = PairFrame(z, noise, None)
         kept = []
-        for hypothesis, predicted_z, extra_noise in zip(predicted, sigma_z, extra):
+        updated = update_together([h.ukf for h in predicted], sigma_z, z, noise + extra, self.correction_period)
+        for hypothesis in (predicted[i] for i in updated):
             ukf = hypothesis.ukf
-            try:
-                # h was evaluated for the whole bank at once: this h hands back the hypothesis's share.
-                # (mypy cannot type a lambda whose default binds the loop's value.)
-                ukf.update(z, noise + extra_noise, lambda _, values=predicted_z: values, self.correction_period)  # type: ignore[misc]
-            except np.linalg.LinAlgError:
-                continue
             hypothesis.log_weight += ukf.log_likelihood
             hypothesis.nis.append(ukf.nis)
             if not (self._implausible(ukf, time) or (not self.recovers and self._inconsistent(hypothesis, time))):

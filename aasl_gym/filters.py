@@ -549,6 +549,28 @@ def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> lis
     return kept
 
 
+def update_together(
+    filters: Sequence[UnscentedKalmanFilter],
+    sigma_values: np.ndarray,
+    z: np.ndarray,
+    noises: np.ndarray,
+    period: float | None = None,
+) -> list[int]:
+    """Update predicted ``filters`` (one set of weights) with one measurement ``z`` as a batch, each as its own
+    :meth:`UnscentedKalmanFilter.update` would: the model's values at each filter's sigma points ``sigma_values``
+    (H, S, 2), each filter's R ``noises`` (H, 2, 2), the RD innovation modulo ``period`` where given. The indices of
+    those that updated; a filter whose innovation covariance is not positive definite is left as it was."""
+    if not filters:
+        return []
+    first = filters[0]
+    results = kernels.unscented_updates(
+        np.stack([f.sigmas_f for f in filters]),  # type: ignore[misc]  # set by predict()
+        sigma_values, np.stack([f.x for f in filters]), np.stack([f.P for f in filters]), first.Wm, first.Wc,
+        noises, z, period,
+    )  # fmt: skip
+    return [i for i, (f, *result) in enumerate(zip(filters, *results)) if f._take_update(*result)]
+
+
 def whole_periods(
     measured: float, sigma_values: np.ndarray, ukf: UnscentedKalmanFilter, noise_variance: float, period: float
 ) -> float | None:
@@ -605,13 +627,20 @@ class UnscentedKalmanFilter:
         if self.sigmas_f is None:
             raise RuntimeError("predict() must run before update()")
         sigmas_h = hx(self.sigmas_f)
-        det, x, covariance, nis, innovation, innovation_covariance = kernels.unscented_update(
-            self.sigmas_f, sigmas_h, self.x, self.P, self.Wm, self.Wc, R, z, period
-        )
-        if not det > 0:
+        result = kernels.unscented_update(self.sigmas_f, sigmas_h, self.x, self.P, self.Wm, self.Wc, R, z, period)
+        if not self._take_update(*result):
             raise np.linalg.LinAlgError("innovation covariance is not positive definite")
-        self.x, self.P, self.nis, self.y, self.S = x, covariance, nis, innovation, innovation_covariance
-        self.log_likelihood = -0.5 * (nis + math.log(det) + LOG_NORMALIZER_2D)
+
+    def _take_update(
+        self, det: float, x: np.ndarray, covariance: np.ndarray, nis: float, innovation, innovation_covariance
+    ) -> bool:
+        """Take an update's results (:func:`aasl_gym.kernels.unscented_update`'s) where det S is positive; whether
+        it was."""
+        if not det > 0:
+            return False
+        self.x, self.P, self.nis, self.y, self.S = x, covariance, float(nis), innovation, innovation_covariance
+        self.log_likelihood = -0.5 * (self.nis + math.log(det) + LOG_NORMALIZER_2D)
+        return True
 
     def update_stacked(self, innovation: np.ndarray, deviations: np.ndarray, R: np.ndarray) -> float:
         """Update with a measurement of any size m, given its innovation (m,), the predicted measurement at

@@ -1594,6 +1594,48 @@ def _points_of(h, means, covariances, spread, out, ok, root):
 
 
 @_compile
+def _unscented_updates(
+    sigmas, values, means, covariances, mean_weights, cov_weights, noises, measured, period, out, det
+):
+    """See :func:`unscented_updates`: :func:`_unscented_update` for each filter h into ``out[h]`` and ``det[h]``."""
+    for h in range(sigmas.shape[0]):
+        det[h] = _unscented_update(
+            sigmas[h], values[h], means[h], covariances[h], mean_weights, cov_weights, noises[h], measured, period,
+            out[h],
+        )  # fmt: skip
+
+
+def unscented_updates(
+    sigmas: np.ndarray,
+    values: np.ndarray,
+    means: np.ndarray,
+    covariances: np.ndarray,
+    mean_weights: np.ndarray,
+    cov_weights: np.ndarray,
+    noises: np.ndarray,
+    measured: np.ndarray,
+    period: float | None,
+) -> tuple[np.ndarray, ...]:
+    """:func:`unscented_update` for a bank of H filters with one measurement in one call: their sigma points (H, S, n),
+    the model's values there (H, S, 2), means (H, n), covariances (H, n, n) and R (H, 2, 2). Returns the H filters'
+    det S, x, P, NIS, innovations and S, stacked, each filter's numbers as :func:`unscented_update` gives them."""
+    count, dim = np.shape(means)
+    out = np.full((count, dim + 1 + dim * dim + 6), np.nan)
+    det = np.empty(count)
+    _unscented_updates(
+        np.ascontiguousarray(sigmas, dtype=float), np.ascontiguousarray(values, dtype=float),
+        np.ascontiguousarray(means, dtype=float), np.ascontiguousarray(covariances, dtype=float), mean_weights,
+        cov_weights, np.ascontiguousarray(noises, dtype=float), np.asarray(measured, dtype=float),
+        0.0 if period is None else float(period), out, det,
+    )  # fmt: skip
+    first = dim + 1 + dim * dim
+    return (
+        det, out[:, :dim], out[:, dim + 1 : first].reshape(count, dim, dim), out[:, dim],
+        out[:, first : first + 2], out[:, first + 2 :].reshape(count, 2, 2),
+    )  # fmt: skip
+
+
+@_compile
 def _sigma_points(means, covariances, spread, out, ok):
     """See :func:`sigma_points`."""
     root = np.zeros((means.shape[1], means.shape[1]))

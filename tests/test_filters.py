@@ -7,7 +7,13 @@ from scipy.integrate import quad_vec, solve_ivp
 from scipy.stats import multivariate_normal
 
 from aasl_gym.config import FilterConfig
-from aasl_gym.filters import MOTION_MODELS, UnscentedKalmanFilter, merwe_sigma_points, predict_together
+from aasl_gym.filters import (
+    MOTION_MODELS,
+    UnscentedKalmanFilter,
+    merwe_sigma_points,
+    predict_together,
+    update_together,
+)
 from aasl_gym.measurement_models import direct_measurement
 
 FIXED = np.array([0.0, 0, -0.96])
@@ -92,6 +98,57 @@ def test_a_batch_predicts_each_filter_as_numpy_predicts_it(name):
         if broken:
             assert np.array_equal(batch[2].P, -starts[2][1])
         assert batch[1].x[2] < -1.0 and batch[1].x[5] < 0  # reflected: back below the bound, going down
+
+
+def test_a_cv_bank_without_bounds_predicts_in_one_call_as_numpy_predicts_it():
+    """The default world's filters (CV, no depth bounds) take the one-call prediction
+    (:func:`aasl_gym.kernels.constant_velocity_prediction`): each filter as the NumPy prediction gives it, to
+    rounding."""
+    model = MOTION_MODELS["cv"](FilterConfig())
+    rng = np.random.default_rng(12)
+    batch, alone = [UnscentedKalmanFilter(model) for _ in range(3)], [UnscentedKalmanFilter(model) for _ in range(3)]
+    for ukf_batch, ukf_alone in zip(batch, alone):
+        root = rng.normal(0, 0.1, (model.dim, model.dim))
+        x, covariance = rng.normal(0, 5, model.dim), root @ root.T + 0.01 * np.eye(model.dim)
+        ukf_batch.initialize(x, covariance)
+        ukf_alone.initialize(x, covariance)
+        numpy_predict(ukf_alone, 0.2)
+    assert predict_together(batch, 0.2) == [0, 1, 2]
+    for ukf_batch, ukf_alone in zip(batch, alone):
+        for attribute in ("x", "P", "sigmas_f"):
+            got, reference = getattr(ukf_batch, attribute), getattr(ukf_alone, attribute)
+            np.testing.assert_allclose(got, reference, rtol=1e-12, atol=1e-14, err_msg=attribute)
+
+
+def test_a_batch_updates_each_filter_as_its_own_update_does():
+    """``update_together`` (one compiled call for the bank) against each filter's own :meth:`update`, to the last bit;
+    a filter whose innovation covariance is not positive definite is left out and left as it was."""
+    model = MOTION_MODELS["cv"](FilterConfig())
+    rng = np.random.default_rng(13)
+    mobile, mobile_velocity = np.array([10.0, 3.0, -6.0]), np.array([0.4, -0.8, 0.0])
+    hx = hx_factory(mobile, mobile_velocity)
+    z = np.array([2.5, 0.1])
+    batch, alone, noises = [], [], []
+    for i in range(3):
+        x = np.r_[rng.normal([5.0, -4.0, -12.0], 2.0), rng.normal(0, 0.3, 3), 0.0, 0.0]
+        covariance = np.diag(rng.uniform(0.05, 0.5, model.dim))
+        pair = [UnscentedKalmanFilter(model) for _ in range(2)]
+        for ukf in pair:
+            ukf.initialize(x, covariance)
+            ukf.predict(0.2)
+        batch.append(pair[0])
+        alone.append(pair[1])
+        noises.append(np.diag([-1e6, 0.0]) if i == 1 else np.diag([0.05**2, 0.02**2]))  # i = 1: S not positive
+    values = np.stack([hx(ukf.sigmas_f) for ukf in batch])
+    x_before = batch[1].x.copy()
+    assert update_together(batch, values, z, np.stack(noises)) == [0, 2]
+    for i in (0, 2):
+        alone[i].update(z, noises[i], hx)
+        for attribute in ("x", "P", "nis", "y", "S", "log_likelihood"):
+            np.testing.assert_array_equal(getattr(batch[i], attribute), getattr(alone[i], attribute), err_msg=attribute)
+    with pytest.raises(np.linalg.LinAlgError):
+        alone[1].update(z, noises[1], hx)
+    np.testing.assert_array_equal(batch[1].x, x_before)
 
 
 def numpy_predict(ukf: UnscentedKalmanFilter, dt: float) -> None:

@@ -176,6 +176,7 @@ def test_every_loop_is_compiled():
         "_frame_and_direct_paths",
         "_ripple_measurements",
         "_constant_velocity_prediction",
+        "_unscented_updates",
     )
     for name in loops + compiled:
         assert isinstance(getattr(kernels, name), numba.core.dispatcher.Dispatcher), name
