@@ -414,11 +414,16 @@ class SourceTracker:
 
     def _frame_model_resolved(self, sigmas: np.ndarray, position_sd: np.ndarray, resolved: np.ndarray) -> bool:
         """Whether the bank's sigma points (H, S, n) take :meth:`_sigma_measurements`' compiled route: the
-        frame-averaged phasor model, every hypothesis able to resolve the ripple, and one pass's worth of points."""
+        frame model and the direct path in one pass (:meth:`_frame_and_direct`), every hypothesis able to resolve
+        the ripple."""
         coarse = (position_sd > self.config.filter.ripple_lock_sd) & ~resolved
-        fits_one_pass = sigmas[..., 0].size <= kernels.CHUNK
+        return self._frame_and_direct(sigmas[..., 0].size) and not coarse.any()
+
+    def _frame_and_direct(self, count: int) -> bool:
+        """Whether ``count`` states take the frame model and the direct path in one compiled pass
+        (:func:`aasl_gym.kernels.frame_and_direct`): under the ripple, in signal mode, one pass's worth of states."""
         frame_model = isinstance(self.measurement_function, FrameAveragedPhasor)
-        return self.ripple and frame_model and fits_one_pass and not coarse.any()
+        return self.ripple and frame_model and count <= kernels.CHUNK
 
     def _sigma_model(
         self,
@@ -446,16 +451,17 @@ class SourceTracker:
         state = (position, velocity, mobile, mobile_velocity, fixed)
         direct = None  # the direct path's values and receiver Jacobian, where the ripple needs them
         direct_receiver = np.zeros(0)
-        frame_model = self.measurement_function
-        if self.ripple and isinstance(frame_model, FrameAveragedPhasor) and position[..., 0].size <= kernels.CHUNK:
+        function = self.measurement_function
+        if self._frame_and_direct(position[..., 0].size):
+            assert isinstance(function, FrameAveragedPhasor)
             # One pass for both models: a lone filter's step spent more on two calls' set-up than on the models.
             z, receiver, direct, direct_receiver = kernels.frame_and_direct(
-                *state, frame_model.offsets, frame_model.propagation
+                *state, function.offsets, function.propagation
             )
-        elif frame_model is direct_measurement:  # compiled, values and receiver Jacobian in one pass
+        elif function is direct_measurement:  # compiled, values and receiver Jacobian in one pass
             z, _, receiver = kernels.direct_path(*state)
         elif linearize is None:
-            z, receiver = frame_model(*state), None
+            z, receiver = function(*state), None
         else:
             z, _, receiver = linearize(*state)
         noise = np.zeros((len(sigmas), 2, 2))

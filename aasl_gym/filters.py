@@ -632,7 +632,13 @@ class UnscentedKalmanFilter:
             raise np.linalg.LinAlgError("innovation covariance is not positive definite")
 
     def _take_update(
-        self, det: float, x: np.ndarray, covariance: np.ndarray, nis: float, innovation, innovation_covariance
+        self,
+        det: float,
+        x: np.ndarray,
+        covariance: np.ndarray,
+        nis: float,
+        innovation: np.ndarray,
+        innovation_covariance: np.ndarray,
     ) -> bool:
         """Take an update's results (:func:`aasl_gym.kernels.unscented_update`'s) where det S is positive; whether
         it was."""
