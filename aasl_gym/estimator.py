@@ -401,7 +401,7 @@ class SourceTracker:
         and the noise each adds to R_ac: the navigation term H_r Sigma_r H_r^T at the hypothesis's mean
         (row 0), and what :meth:`_sigma_model` adds for a hypothesis that cannot resolve the ripple."""
         frame_model = self.measurement_function
-        if self._frame_model_resolved(sigmas, position_sd, resolved):
+        if self._compiled_measurement_route(sigmas, position_sd, resolved):
             assert isinstance(frame_model, FrameAveragedPhasor) and self.correction_period is not None
             # The common step in two compiled calls, not thirty NumPy ones: the same numbers as the route below.
             state = (sigmas[..., 0:3], self.model.velocity(sigmas), mobile, mobile_velocity, self.fixed)
@@ -412,14 +412,14 @@ class SourceTracker:
         z, noise, jacobian = self._sigma_model(sigmas, position_sd, resolved, mobile, mobile_velocity, self.fixed)
         return z + sigmas[..., -2:], noise + receiver_noise(jacobian, *self.navigation_sd)
 
-    def _frame_model_resolved(self, sigmas: np.ndarray, position_sd: np.ndarray, resolved: np.ndarray) -> bool:
+    def _compiled_measurement_route(self, sigmas: np.ndarray, position_sd: np.ndarray, resolved: np.ndarray) -> bool:
         """Whether the bank's sigma points (H, S, n) take :meth:`_sigma_measurements`' compiled route: the
-        frame model and the direct path in one pass (:meth:`_frame_and_direct`), every hypothesis able to resolve
-        the ripple."""
+        frame model and the direct path in one pass (:meth:`_one_pass_models`), every hypothesis able to resolve
+        the ripple (one that cannot sends the whole bank down the NumPy route)."""
         coarse = (position_sd > self.config.filter.ripple_lock_sd) & ~resolved
-        return self._frame_and_direct(sigmas[..., 0].size) and not coarse.any()
+        return self._one_pass_models(sigmas[..., 0].size) and not coarse.any()
 
-    def _frame_and_direct(self, count: int) -> bool:
+    def _one_pass_models(self, count: int) -> bool:
         """Whether ``count`` states take the frame model and the direct path in one compiled pass
         (:func:`aasl_gym.kernels.frame_and_direct`): under the ripple, in signal mode, one pass's worth of states."""
         frame_model = isinstance(self.measurement_function, FrameAveragedPhasor)
@@ -452,7 +452,7 @@ class SourceTracker:
         direct = None  # the direct path's values and receiver Jacobian, where the ripple needs them
         direct_receiver = np.zeros(0)
         function = self.measurement_function
-        if self._frame_and_direct(position[..., 0].size):
+        if self._one_pass_models(position[..., 0].size):
             assert isinstance(function, FrameAveragedPhasor)
             # One pass for both models: a lone filter's step spent more on two calls' set-up than on the models.
             z, receiver, direct, direct_receiver = kernels.frame_and_direct(

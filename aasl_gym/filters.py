@@ -521,7 +521,8 @@ def merwe_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> 
 
 def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> list[int]:
     """Predict ``filters`` (one motion model and one set of weights) ``dt`` seconds on as a batch, the sigma points and
-    the moments compiled (:func:`aasl_gym.kernels.sigma_points`, :func:`aasl_gym.kernels.sigma_moments`), each as its
+    the moments compiled (:func:`aasl_gym.kernels.sigma_points`, :func:`aasl_gym.kernels.sigma_moments`; a CV bank
+    without depth bounds all in one call, :func:`aasl_gym.kernels.constant_velocity_prediction`), each as its
     own :meth:`UnscentedKalmanFilter.predict` would; the indices of those that predicted. A filter whose covariance
     is not positive definite, before or after the prediction, is left out and left as it was (its mean and covariance
     not half predicted)."""
@@ -559,7 +560,7 @@ def update_together(
     """Update predicted ``filters`` (one set of weights) with one measurement ``z`` as a batch, each as its own
     :meth:`UnscentedKalmanFilter.update` would: the model's values at each filter's sigma points ``sigma_values``
     (H, S, 2), each filter's R ``noises`` (H, 2, 2), the RD innovation modulo ``period`` where given. The indices of
-    those that updated; a filter whose innovation covariance is not positive definite is left as it was."""
+    those that updated; a filter whose innovation covariance has no positive determinant is left as it was."""
     if not filters:
         return []
     first = filters[0]

@@ -403,6 +403,9 @@ def frame_and_direct(
     each; at most ``CHUNK`` of them) and one mobile receiver (3,): the same numbers to the last bit, from one pass
     over the states (an unscented filter bank's sigma points take both every step)."""
     shape = np.shape(position)[:-1]
+    if np.shape(velocity) != np.shape(position) or np.shape(position)[-1:] != (3,):
+        raise ValueError(f"position and velocity must share one shape (..., 3), got {np.shape(position)} and "
+                         f"{np.shape(velocity)}")  # fmt: skip
     position = np.ascontiguousarray(position, dtype=float).reshape(-1, 3)
     count = position.shape[0]
     if count > CHUNK:
@@ -428,7 +431,9 @@ def frame_and_direct(
 @numba.njit(inline="always", error_model="numpy")
 def _pair_dot6(a, b):
     """sum_q a[q] b[q] over six numbers in NumPy's ``einsum`` order for a contraction of six: two running sums,
-    the even terms' and the odd terms', added at the end (``tests/test_kernels.py`` holds the two equal)."""
+    the even terms' and the odd terms', added at the end - the order of NumPy's baseline x86-64 build (two-lane
+    vectors, no fused multiply-add). A build with wider vectors or fused multiply-adds (ARM, x86-64-v3) sums in
+    another order; ``tests/test_kernels.py`` holds the two equal, and fails there."""
     even = a[0] * b[0] + a[2] * b[2] + a[4] * b[4]
     odd = a[1] * b[1] + a[3] * b[3] + a[5] * b[5]
     return even + odd
@@ -1687,7 +1692,7 @@ def _constant_velocity_prediction(means, covariances, spread, dt, mean_weights, 
     predicted_means, predicted_covariances, points, ok = out
     count, size, dim = points.shape
     root = np.zeros((dim, dim))
-    moved, moved_ok = np.empty((1, size, dim)), np.empty(1, dtype=np.bool_)
+    moved, moved_ok = np.empty((1, size, dim)), np.empty(count, dtype=np.bool_)
     for h in range(count):
         _points_of(h, means, covariances, spread, points, ok, root)
         for s in range(size):
@@ -1699,7 +1704,7 @@ def _constant_velocity_prediction(means, covariances, spread, dt, mean_weights, 
             0, moved, mean_weights, cov_weights, noise, predicted_means[h : h + 1], predicted_covariances[h : h + 1]
         )
         _points_of(h, predicted_means, predicted_covariances, spread, points, moved_ok, root)
-        ok[h] = ok[h] and moved_ok[0]
+        ok[h] = ok[h] and moved_ok[h]
 
 
 def constant_velocity_prediction(

@@ -748,3 +748,12 @@ def test_the_banks_compiled_measurement_step_is_the_general_route_to_the_last_bi
     z, ripple, jacobian = tracker._sigma_model(sigmas, np.zeros(3), resolved, mobile, mobile_velocity, tracker.fixed)
     np.testing.assert_array_equal(values, z + sigmas[..., -2:])
     np.testing.assert_array_equal(noise, ripple + receiver_noise(jacobian, *tracker.navigation_sd))
+    # One hypothesis too wide for the ripple: the whole bank takes the general route, which gives it ripple noise.
+    resolved[1], position_sd = False, np.array([0.0, 10 * tracker.config.filter.ripple_lock_sd, 0.0])
+    compiled_calls.clear()
+    values, noise = tracker._sigma_measurements(sigmas, position_sd, resolved, mobile, mobile_velocity)
+    assert not compiled_calls
+    z, ripple, jacobian = tracker._sigma_model(sigmas, position_sd, resolved, mobile, mobile_velocity, tracker.fixed)
+    assert np.all(ripple[1] != 0) and np.all(ripple[[0, 2]] == 0)
+    np.testing.assert_array_equal(values, z + sigmas[..., -2:])
+    np.testing.assert_array_equal(noise, ripple + receiver_noise(jacobian, *tracker.navigation_sd))

@@ -6,6 +6,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter as Fil
 from scipy.integrate import quad_vec, solve_ivp
 from scipy.stats import multivariate_normal
 
+from aasl_gym import kernels
 from aasl_gym.config import FilterConfig
 from aasl_gym.filters import (
     MOTION_MODELS,
@@ -100,7 +101,7 @@ def test_a_batch_predicts_each_filter_as_numpy_predicts_it(name):
         assert batch[1].x[2] < -1.0 and batch[1].x[5] < 0  # reflected: back below the bound, going down
 
 
-def test_a_cv_bank_without_bounds_predicts_in_one_call_as_numpy_predicts_it():
+def test_a_cv_bank_without_bounds_predicts_in_one_call_as_numpy_predicts_it(monkeypatch):
     """The default world's filters (CV, no depth bounds) take the one-call prediction
     (:func:`aasl_gym.kernels.constant_velocity_prediction`): each filter as the NumPy prediction gives it, to
     rounding."""
@@ -113,7 +114,11 @@ def test_a_cv_bank_without_bounds_predicts_in_one_call_as_numpy_predicts_it():
         ukf_batch.initialize(x, covariance)
         ukf_alone.initialize(x, covariance)
         numpy_predict(ukf_alone, 0.2)
+    calls = []
+    one_call = kernels.constant_velocity_prediction
+    monkeypatch.setattr(kernels, "constant_velocity_prediction", lambda *a: calls.append(1) or one_call(*a))
     assert predict_together(batch, 0.2) == [0, 1, 2]
+    assert calls  # the one-call route ran
     for ukf_batch, ukf_alone in zip(batch, alone):
         for attribute in ("x", "P", "sigmas_f"):
             got, reference = getattr(ukf_batch, attribute), getattr(ukf_alone, attribute)

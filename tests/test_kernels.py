@@ -309,6 +309,8 @@ def test_the_frame_model_and_the_direct_path_in_one_pass_are_the_two_passes_to_t
     ]:
         assert got.shape == expected.shape
         np.testing.assert_array_equal(got, expected)
+    with pytest.raises(ValueError, match="share one shape"):
+        kernels.frame_and_direct(position, velocity[..., 0, :], mobile, mobile_velocity, FIXED, offsets, PROPAGATION)
 
 
 def test_the_six_term_sum_is_numpys_einsum_to_the_last_bit():
@@ -364,3 +366,11 @@ def test_the_constant_velocity_prediction_in_one_call_is_the_three_calls_to_the_
     np.testing.assert_array_equal(predicted_means, expected_means)
     np.testing.assert_array_equal(predicted_covariances, expected_covariances)
     np.testing.assert_array_equal(points[valid], expected_points[valid])
+    # A predicted covariance that breaks, after the first filter's (a negative Q takes the smallest P below zero).
+    covariances = np.array([np.eye(model.dim) * scale for scale in (10.0, 10.0, 0.01, 10.0)])
+    broken_noise = -np.eye(model.dim)
+    valid = kernels.constant_velocity_prediction(means, covariances, spread, 0.0, wm, wc, broken_noise)[3]
+    sigmas, first_valid = kernels.sigma_points(means, covariances, spread)
+    moved_means, moved_covariances = kernels.sigma_moments(model.transition(sigmas, 0.0), wm, wc, broken_noise)
+    second_valid = kernels.sigma_points(moved_means, moved_covariances, spread)[1]
+    assert valid.tolist() == (first_valid & second_valid).tolist() == [True, True, False, True]
