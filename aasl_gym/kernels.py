@@ -50,10 +50,11 @@ window fit, 45 % less again). The unscented filters' sigma points, moments and u
 :func:`sigma_moments`, :func:`unscented_update`), a channel's clipping count (:func:`peak_counts`), the reward's
 Fisher information step (:func:`information_step`) and the greedy planner's horizon (:func:`horizon_information`)
 are compiled too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step. So is a filter bank's
-measurement step under the phasor model (:func:`frame_and_direct`, :func:`ripple_measurements`: the frame model and
-the direct path at every sigma point in one pass, the ripple's correction and R_eff's navigation term in another,
-NumPy's arctangent between them), to the last bit of the NumPy route it replaces (session 43: a lone filter's step
-had spent more on thirty calls' set-up than on the models).
+whole step, once for all its filters: a CV bank's prediction (:func:`constant_velocity_prediction`), the measurement
+model under the phasor model (:func:`frame_and_direct`, :func:`ripple_measurements`: the frame model and the direct
+path at every sigma point in one pass, the ripple's correction and R_eff's navigation term in another, NumPy's
+arctangent between them) and the update (:func:`unscented_updates`), each to the last bit of the NumPy route it
+replaces (session 43: a lone filter's step had spent more on thirty calls' set-up than on the models).
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
 21 seconds, most of it the window fit's pass), later processes load it (about 0.15 s, at the first call).
