@@ -57,7 +57,8 @@ arctangent between them) and the update (:func:`unscented_updates`), each to the
 replaces (session 43: a lone filter's step had spent more on thirty calls' set-up than on the models).
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
-21 seconds, most of it the window fit's pass), later processes load it (about 0.15 s, at the first call).
+40 seconds on the development machine, most of it the window fit's pass; the filter bank's four kernels add 5),
+later processes load it (about 0.15 s, at the first call).
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ def env_step_rates(env_id: str, episodes: int, **kwargs) -> tuple[float, float]:
 
 def warm_up(steps: int = 50) -> None:
     """A few untimed steps of the default world: the process's first step loads the compiled kernels (about 0.15 s;
-    after a change to them, or on a new machine, it compiles them, about 21 s), which no timing should carry."""
+    after a change to them, or on a new machine, it compiles them, about 40 s), which no timing should carry."""
     env = gym.make("AASL-Helix-v0", measurement="signal", source_motion="cv")
     env.reset(seed=0)
     for _ in range(steps):
