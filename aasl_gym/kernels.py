@@ -352,6 +352,12 @@ def frame_phasor(
         out = np.empty((26, count))
         for start in range(0, count, CHUNK):
             out[:, start : start + CHUNK] = _frame_block(rows[:, start : start + CHUNK], fixed, offsets, propagation)
+    return _columns(out, shape)
+
+
+def _columns(out: np.ndarray, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows (26, N) the frame model's and the direct path's loops write as [RD, RRD] (..., 2), d[RD, RRD]/d[p, v]
+    and d[RD, RRD]/d[p_m, v_m] (..., 2, 6 each) for states of leading ``shape``."""
     columns = out.T
     return (
         columns[:, 0:2].reshape(shape + (2,)),
@@ -376,25 +382,20 @@ def _frame_block(rows: np.ndarray, fixed: np.ndarray, offsets: np.ndarray, propa
 @_compile
 def _frame_and_direct_paths(position, velocity, mobile, mobile_velocity, fixed, offsets, channel, paths, direct):
     """:func:`_frame_block`'s phasor rows ``paths`` (11, S, N) and :func:`_direct_loop`'s rows ``direct`` (26, N) for
-    the N states ``position`` and ``velocity`` (N, 3 each) and one mobile receiver (3,), in one pass: each frame sample
-    as :func:`_frame_block` places it (x + tau x'), each number as the two loops compute it."""
-    fx, fy, fz = fixed[0], fixed[1], fixed[2]
-    depth, surface_gain, bed_gain, wavenumber = channel[0], channel[1], channel[2], channel[3]
-    for s in range(offsets.shape[0]):
-        tau = offsets[s]
-        mx, my = mobile[0] + tau * mobile_velocity[0], mobile[1] + tau * mobile_velocity[1]
-        mz = mobile[2] + tau * mobile_velocity[2]
-        for i in range(position.shape[0]):
-            sx, sy = position[i, 0] + tau * velocity[i, 0], position[i, 1] + tau * velocity[i, 1]
-            sz = position[i, 2] + tau * velocity[i, 2]
-            row = _pair(sx, sy, sz, mx, my, mz, fx, fy, fz, depth, surface_gain, bed_gain, wavenumber)
-            for r in range(11):
-                paths[r, s, i] = row[r]
-    rows = np.empty((12, position.shape[0]))
-    for i in range(position.shape[0]):
+    the N states ``position`` and ``velocity`` (N, 3 each) and one mobile receiver (3,), in one call: the two loops on
+    one set of rows (12, N), :func:`_frame_block`'s frame samples (x + tau x') taken from them as it takes them."""
+    count = position.shape[0]
+    rows = np.empty((12, count))
+    for i in range(count):
         for c in range(3):
             rows[c, i], rows[3 + c, i] = position[i, c], mobile[c]
             rows[6 + c, i], rows[9 + c, i] = velocity[i, c], mobile_velocity[c]
+    points = np.empty((6, offsets.shape[0] * count))  # sample-major, as _frame_block lays them out
+    for s in range(offsets.shape[0]):
+        for q in range(6):
+            for i in range(count):
+                points[q, s * count + i] = rows[q, i] + offsets[s] * rows[6 + q, i]
+    _phasor_loop(points, fixed, channel[0], channel[1], channel[2], channel[3], paths.reshape(11, -1))
     _direct_loop(rows, fixed, direct)
 
 
@@ -421,13 +422,9 @@ def frame_and_direct(
     )  # fmt: skip
     frame = np.empty((26, count))
     _frame_combine(_apparent(paths, p.wavenumber), paths, offsets, 2 * np.pi / p.wavenumber, frame)
-    frame_columns, direct_columns = frame.T, direct.T
-    return (
-        frame_columns[:, 0:2].reshape(shape + (2,)),
-        frame_columns[:, 14:26].reshape(shape + (2, 6)),
-        direct_columns[:, 0:2].reshape(shape + (2,)),
-        direct_columns[:, 14:26].reshape(shape + (2, 6)),
-    )
+    frame_values, _, frame_receiver = _columns(frame, shape)
+    direct_values, _, direct_receiver = _columns(direct, shape)
+    return frame_values, frame_receiver, direct_values, direct_receiver
 
 
 @numba.njit(inline="always", error_model="numpy")
@@ -824,12 +821,7 @@ def direct_path(position, velocity, mobile, mobile_velocity, fixed) -> tuple[np.
     shape, rows = _rows(position, mobile, velocity, mobile_velocity)
     out = np.empty((26, rows.shape[1]))
     _direct_loop(rows, _fixed_point(fixed), out)
-    columns = out.T
-    return (
-        columns[:, 0:2].reshape(shape + (2,)),
-        columns[:, 2:14].reshape(shape + (2, 6)),
-        columns[:, 14:26].reshape(shape + (2, 6)),
-    )
+    return _columns(out, shape)
 
 
 @numba.njit(inline="always", error_model="numpy")
