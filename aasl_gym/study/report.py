@@ -62,9 +62,10 @@ def plain_summary(summary: list[Row]) -> list[str]:
 def _filter_models(models: dict[str, str]) -> str:
     """The filter's motion model for each source motion (``models``), in words; where one model serves every
     motion, the motions it does not match are named (their sources move otherwise than it predicts)."""
-    if len(set(models.values())) > 1:
+    used = set(models.values())
+    if len(used) > 1:
         return "filter motion model per source motion: " + ", ".join(f"{m} `{f}`" for m, f in models.items())
-    (model,) = set(models.values())
+    (model,) = used
     mismatched = [m for m in models if MATCHED_FILTER.get(m) != model]
     note = f" (not matched to the {', '.join(mismatched)} sources; `--filter-model matched` gives each motion its own)"
     return f"filter motion model `{model}` for every source motion" + (note if mismatched else "")
