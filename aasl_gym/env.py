@@ -16,6 +16,7 @@ from aasl_gym.config import PATROLS, ConfigError, EnvConfig, from_dict, load_con
 from aasl_gym.estimator import SourceTracker, TrackerOutput
 from aasl_gym.filters import ConstantVelocity
 from aasl_gym.fisher import InformationTracker, measurement_jacobian
+from aasl_gym.geometry import vector_norm
 from aasl_gym.measurement_models import navigation_covariance
 from aasl_gym.motion import (
     NavigationError,
@@ -328,7 +329,7 @@ class AASLEnv(gym.Env):
         action = np.asarray(action, dtype=float).reshape(-1)
         if action.shape != (3,):
             raise ValueError(f"action must have shape (3,), got {action.shape}")
-        if not np.all(np.isfinite(action)):
+        if not np.isfinite(action).all():
             raise ValueError(f"action must be finite, got {action.tolist()}")
         return np.clip(action, -1.0, 1.0)
 
@@ -391,7 +392,7 @@ class AASLEnv(gym.Env):
             )
         if received(z):  # the observation holds the last measurement over lost frames
             self._last_measurement[:] = z
-        innovation_known = np.all(np.isfinite(out.innovation))
+        innovation_known = np.isfinite(out.innovation).all()
         self._last_innovation[:] = out.innovation / out.innovation_sd if innovation_known else 0.0
         return out
 
@@ -407,7 +408,7 @@ class AASLEnv(gym.Env):
 
     def _position_error(self) -> float:
         """m, of the reported estimate (the prior's mean before the filter starts)."""
-        return float(np.linalg.norm(self.tracker.position - self.source.position))
+        return vector_norm(self.tracker.position - self.source.position)
 
     def _reward_terms(self, action: np.ndarray, hit: bool, fim_logdet: float, error: float) -> dict[str, float]:
         """The step's weighted reward terms, ``error`` (m) that of the tracker's estimate (NaN before it
@@ -457,7 +458,7 @@ class AASLEnv(gym.Env):
             "measurement_true": kernels.direct_path(
                 self.source.position, self.source.velocity, self.receiver_position, self.receiver_velocity, self.fixed
             )[0],
-            "snr_db": float(10 * np.log10(np.min(self.sensor.snr()))),
+            "snr_db": float(10 * np.log10(self.sensor.snr().min())),
             "initialized": out.initialized,
             "converged": bool(converged),
             "reinitialized": out.reinitialized,
@@ -496,7 +497,7 @@ class AASLEnv(gym.Env):
             estimate = {
                 "estimate_position": tracker.position,
                 "estimate_velocity": tracker.velocity,
-                "position_variance": np.diag(tracker.ukf.P)[:3],
+                "position_variance": tracker.ukf.P.diagonal()[:3],
             }
         known = Observation(
             self._time,

@@ -106,6 +106,7 @@ from aasl_gym.filters import (
     make_motion_model,
     merwe_weights,
     predict_together,
+    stacked,
     update_together,
     whole_periods,
 )
@@ -1043,7 +1044,7 @@ class SourceTracker:
         return self.wavelength * np.round(range_bias / self.wavelength)
 
     def _implausible(self, ukf: UnscentedKalmanFilter, time: float) -> bool:
-        if not np.all(np.isfinite(ukf.x)):
+        if not np.isfinite(ukf.x).all():
             return True
         p, v = ukf.x[0:3], self.model.velocity(ukf.x)
         slack = 10.0  # m beyond the reachable region before an estimate counts as impossible
@@ -1061,7 +1062,7 @@ class SourceTracker:
         if self.ripple:
             # A frame at an interference null can miss by many sd: one such frame must not decide.
             nis = np.minimum(nis, RIPPLE_NIS_CAP * self.config.filter.divergence_nis)
-        return float(np.mean(nis)) > self.config.filter.divergence_nis
+        return float(nis.mean()) > self.config.filter.divergence_nis
 
     def _assimilate(
         self, dt: float, z: np.ndarray, noise: np.ndarray, mobile: np.ndarray, mobile_velocity: np.ndarray, time: float
@@ -1074,7 +1075,7 @@ class SourceTracker:
         if not predicted:
             self.bank = []
             return
-        sigmas = np.stack([h.ukf.sigmas_f for h in predicted])  # type: ignore[misc]  # set by predict()
+        sigmas = stacked([h.ukf.sigmas_f for h in predicted])  # type: ignore[misc]  # set by predict(); only read
         unresolved = [self.ripple and not h.resolved for h in predicted]
         # Only a hypothesis that has yet to resolve the ripple needs its position sd (an eigen-decomposition).
         position_sd = np.array([self._position_sd(h.ukf.P) if u else 0.0 for h, u in zip(predicted, unresolved)])
@@ -1255,7 +1256,7 @@ class SourceTracker:
             jumped = self._check_track(time)
         self.reinitializations += jumped
         ukf = self.ukf
-        return TrackerOutput(True, jumped, ukf.y.copy(), np.sqrt(np.diag(ukf.S)))
+        return TrackerOutput(True, jumped, ukf.y.copy(), np.sqrt(ukf.S.diagonal()))
 
     def _recover(self, time: float, rng: np.random.Generator) -> bool:
         """The likeliest filter stopped explaining the data: search again on the recent window, at any time.

@@ -32,6 +32,7 @@ from aasl_gym.motion import coordinated_turn_displacement, small_angle_series
 
 BASE_DIM = 8  # [p, v, b_p, b_v]: the layout initializers produce
 LIMIT_GRAZE = 0.05  # a speed-limited CA's Jacobian: the least cosine between a and the velocity at the limit
+FREE_MATRICES_KEPT = 64  # free-motion matrices (K, 6, n - 2) a linear model keeps: a few MB at most
 LOG_NORMALIZER_2D = 2 * math.log(2 * math.pi)  # log (2 pi)^2: a 2-D Gaussian's log density carries half of it
 
 
@@ -78,6 +79,7 @@ class MotionModel:
         self.depth_bounds = depth_bounds
         self.fold_trajectories = fold_trajectories and depth_bounds is not None
         self._noise_cache: dict[float, np.ndarray] = {}
+        self._free_matrices: dict[bytes, np.ndarray] = {}  # see LinearMotionModel._free_matrix
 
     def velocity(self, states: np.ndarray) -> np.ndarray:
         """The source's velocity (..., 3; m/s) in states (..., n): components 3:6 (a view)."""
@@ -268,9 +270,20 @@ class LinearMotionModel(MotionModel):
         return self._free_matrix(np.asarray(lags, dtype=float))
 
     def _free_matrix(self, lags: np.ndarray) -> np.ndarray:
-        moving = self.dim - 2
-        units = np.broadcast_to(np.eye(self.dim)[:moving], (len(lags), moving, self.dim))
-        return np.swapaxes(self._advance(units, lags[:, None, None])[..., 0:6], -1, -2)
+        """:meth:`free_motion_matrix` (read-only), kept per distinct ``lags``: the history is sampled evenly, so
+        windows of one length share their lags, and a re-seed's fits, the next re-seed's and the track checks'
+        read the same few matrices."""
+        key = lags.tobytes()
+        matrix = self._free_matrices.get(key)
+        if matrix is None:
+            moving = self.dim - 2
+            units = np.broadcast_to(np.eye(self.dim)[:moving], (len(lags), moving, self.dim))
+            matrix = np.swapaxes(self._advance(units, lags[:, None, None])[..., 0:6], -1, -2)
+            matrix.flags.writeable = False
+            if len(self._free_matrices) >= FREE_MATRICES_KEPT:
+                del self._free_matrices[next(iter(self._free_matrices))]  # the first kept
+            self._free_matrices[key] = matrix
+        return matrix
 
 
 class ConstantVelocity(LinearMotionModel):
@@ -519,6 +532,12 @@ def merwe_sigma_points(x: np.ndarray, covariance: np.ndarray, spread: float) -> 
     return np.concatenate([x[None, :], x + root, x - root])
 
 
+def stacked(arrays: list[np.ndarray]) -> np.ndarray:
+    """``np.stack(arrays)`` for a reader only: a lone array as a view of it (most steps carry one filter, and
+    the copy's call cost more than the kernels' loops over it)."""
+    return arrays[0][None] if len(arrays) == 1 else np.stack(arrays)
+
+
 def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> list[int]:
     """Predict ``filters`` (one motion model and one set of weights) ``dt`` seconds on as a batch, the sigma points and
     the moments compiled (:func:`aasl_gym.kernels.sigma_points`, :func:`aasl_gym.kernels.sigma_moments`; a CV bank
@@ -530,7 +549,7 @@ def predict_together(filters: Sequence[UnscentedKalmanFilter], dt: float) -> lis
         return []
     first = filters[0]
     model, spread = first.model, first.spread
-    gaussians = np.stack([f.x for f in filters]), np.stack([f.P for f in filters])
+    gaussians = stacked([f.x for f in filters]), stacked([f.P for f in filters])
     noise = model.process_noise(dt)
     if isinstance(model, ConstantVelocity) and model.depth_bounds is None:  # nothing reflects: one compiled call
         means, covariances, predicted_sigmas, valid = kernels.constant_velocity_prediction(
@@ -565,8 +584,8 @@ def update_together(
         return []
     first = filters[0]
     results = kernels.unscented_updates(
-        np.stack([f.sigmas_f for f in filters]),  # type: ignore[misc]  # set by predict()
-        sigma_values, np.stack([f.x for f in filters]), np.stack([f.P for f in filters]), first.Wm, first.Wc,
+        stacked([f.sigmas_f for f in filters]),  # type: ignore[misc]  # set by predict()
+        sigma_values, stacked([f.x for f in filters]), stacked([f.P for f in filters]), first.Wm, first.Wc,
         noises, z, period,
     )  # fmt: skip
     return [i for i, (f, *result) in enumerate(zip(filters, *results)) if f._take_update(*result)]

@@ -40,7 +40,7 @@ def saturated(samples: np.ndarray, share: float = 0.01) -> bool:
     clipped channel: an unclipped one reaches it once); a complex envelope's real and imaginary parts are
     tested apart."""
     samples = np.asarray(samples)
-    return bool(np.any(kernels.peak_counts(samples) > share * samples.shape[-1]))
+    return bool((kernels.peak_counts(samples) > share * samples.shape[-1]).any())
 
 
 def detection_statistic(samples: np.ndarray, band: tuple[float, float], rate: float, padding: int = 4) -> np.ndarray:
@@ -56,6 +56,58 @@ def detection_statistic(samples: np.ndarray, band: tuple[float, float], rate: fl
     count = padding * np.shape(samples)[-1]
     # SciPy's transform is numpy's to the last bit here, and pads without a copy (a third faster).
     return kernels.peak_over_median(fft.fft(samples, count), _band_bins(count, rate, tuple(band)))
+
+
+# Relative margin by which the lower bound must clear the threshold to settle a frame: the bound's own rounding and
+# the statistic's (its FFT and median) are some 1e-12 of it, so no frame is settled otherwise than the statistic
+# would settle it.
+BOUND_MARGIN = 1e-6
+
+
+def detection_lower_bound(samples: np.ndarray, band: tuple[float, float], rate: float, padding: int = 4) -> np.ndarray:
+    """A lower bound of :func:`detection_statistic` (linear) for each channel (..., N) of ``samples``, from the
+    periodogram's powers at the few bins C about the carrier and the channel's energy alone (7 us for two channels
+    against the padded FFT's 40 on the development machine): zero where it bounds nothing.
+
+    Let P_k be the padded periodogram and B the band's bins. The peak is at least max_C P_k. At least |B| // 2
+    of the band's bins reach its median, and at most |C| of them lie in C, so the median is at most
+    (sum_k P_k - sum_C P_k) / (|B| // 2 - |C|), where sum_k P_k over every bin is the padded length times
+    sum_n |x_n|^2 (Parseval). C spans a tone's main lobe (``padding`` bins either side of its frequency) and
+    two bins of Doppler (1.25 Hz each at 4 kHz: more than a 1 kHz tone's 3 m/s of closing speed moves it). A
+    tone heard well clears the threshold by this bound; a faint or multipath-faded one, noise, or a tone
+    beyond C does not, and takes the statistic itself (:func:`tone_detected`).
+    """
+    samples = np.asarray(samples)
+    count = padding * samples.shape[-1]
+    table = _near_table(samples.shape[-1], count, rate, tuple(band), padding)
+    above = len(_band_bins(count, rate, tuple(band))) // 2 - table.shape[1]
+    if above <= 0:
+        return np.zeros(samples.shape[:-1])
+    return kernels.peak_over_median_bound(samples, table, count, above)
+
+
+def tone_detected(
+    samples: np.ndarray, band: tuple[float, float], rate: float, threshold: float, padding: int = 4
+) -> bool:
+    """Whether every channel's :func:`detection_statistic` reaches ``threshold`` (linear). The statistic's padded
+    FFT is taken only where :func:`detection_lower_bound` does not already clear the threshold (by
+    ``BOUND_MARGIN``): the same answer, in most frames at a quarter of the cost (94 % of the default world's frames and
+    all of the free field's, tuning seeds)."""
+    if (detection_lower_bound(samples, band, rate, padding) >= threshold * (1 + BOUND_MARGIN)).all():
+        return True
+    return bool((detection_statistic(samples, band, rate, padding) >= threshold).all())
+
+
+@functools.lru_cache(maxsize=16)
+def _near_table(samples: int, count: int, rate: float, band: tuple[float, float], padding: int) -> np.ndarray:
+    """cos and -sin of 2 pi k n / ``count`` (2, J, ``samples``) for the bins k within ``padding`` + 2 of the carrier's
+    (zero) that lie within ``band`` (Hz): :func:`aasl_gym.kernels.peak_over_median_bound`'s table (read-only)."""
+    near = np.arange(-(padding + 2), padding + 3)
+    near = near[np.isin(near % count, _band_bins(count, rate, band))]
+    angles = 2 * np.pi * np.outer(near, np.arange(samples)) / count
+    table = np.stack([np.cos(angles), -np.sin(angles)])
+    table.setflags(write=False)
+    return table
 
 
 @functools.lru_cache(maxsize=16)
@@ -406,8 +458,7 @@ class FrontEnd:
         low, high = self.waveform.band
         band = (low - self.waveform.carrier, high - self.waveform.carrier)
         threshold = 10 ** (self.detection_snr_db / 10)
-        channels = np.array([envelope.mobile, envelope.fixed])
-        return bool(np.all(detection_statistic(channels, band, envelope.rate) >= threshold))
+        return tone_detected(np.array([envelope.mobile, envelope.fixed]), band, envelope.rate, threshold)
 
     def snr(self, envelope: Channel) -> np.ndarray:
         """Each channel's in-band SNR (linear): band power above the known noise floor, over the noise level.

@@ -16,6 +16,7 @@ Conventions (SPEC section 2), with p_s the source, p_m the mobile and p_f the fi
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -23,6 +24,12 @@ import numpy as np
 from aasl_gym import kernels
 
 ZERO3 = np.zeros(3)
+
+
+def vector_norm(vector: np.ndarray) -> float:
+    """|v| of one vector (any unit): ``np.linalg.norm``'s own formula for it, sqrt(v . v), to the last bit, without its
+    dispatch (a few of these run every step)."""
+    return math.sqrt(vector.dot(vector))
 
 
 def ranges(source: np.ndarray, receiver: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

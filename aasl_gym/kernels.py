@@ -54,7 +54,10 @@ whole step, once for all its filters: a CV bank's prediction (:func:`constant_ve
 model under the phasor model (:func:`frame_and_direct`, :func:`ripple_measurements`: the frame model and the direct
 path at every sigma point in one pass, the ripple's correction and R_eff's navigation term in another, NumPy's
 arctangent between them) and the update (:func:`unscented_updates`), each to the last bit of the NumPy route it
-replaces (session 43: a lone filter's step had spent more on thirty calls' set-up than on the models).
+replaces (session 43: a lone filter's step had spent more on thirty calls' set-up than on the models). The tone
+detector's lower bound (:func:`peak_over_median_bound`) is the one kernel whose sums LLVM may reorder (``fastmath``'s
+reassociation): only a bound, cleared by a margin, is taken from them (session 44: most frames then skip the
+detector's padded FFT).
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
 40 seconds on the development machine, most of it the window fit's pass; the filter bank's four kernels add 5),
@@ -1486,6 +1489,44 @@ def peak_over_median(spectra: np.ndarray, bins: np.ndarray) -> np.ndarray:
     out = np.empty(rows.shape[0])
     _peak_over_median(rows, np.ascontiguousarray(bins, dtype=np.int64), out)
     return out.reshape(spectra.shape[:-1])
+
+
+# Reassociation lets LLVM vectorise the bins' sums; their rounding only has to stay inside the bound's margin. (Not
+# the flags that assume no NaN: a NaN channel must give no bound, not a wrong one.)
+@numba.njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
+def _peak_over_median_bound(rows, table, padded, above, out):
+    """See :func:`peak_over_median_bound`: ``rows`` (R, N) complex, ``table`` (2, J, N), ``out`` (R,)."""
+    count = rows.shape[1]
+    real, imaginary = np.empty(count), np.empty(count)
+    for r in range(rows.shape[0]):
+        energy = 0.0
+        for n in range(count):  # the parts apart, so that the sums below read contiguous rows
+            real[n], imaginary[n] = rows[r, n].real, rows[r, n].imag
+            energy += real[n] * real[n] + imaginary[n] * imaginary[n]
+        peak, near = 0.0, 0.0
+        for j in range(table.shape[1]):
+            total_real, total_imaginary = 0.0, 0.0
+            for n in range(count):
+                cosine, sine = table[0, j, n], table[1, j, n]
+                total_real += real[n] * cosine - imaginary[n] * sine
+                total_imaginary += real[n] * sine + imaginary[n] * cosine
+            power = total_real * total_real + total_imaginary * total_imaginary
+            peak, near = max(peak, power), near + power
+        rest = padded * energy - near
+        out[r] = peak * math.log(2.0) * above / rest if rest > 0.0 else 0.0
+
+
+def peak_over_median_bound(samples: np.ndarray, table: np.ndarray, padded: int, above: int) -> np.ndarray:
+    """A lower bound of :func:`peak_over_median`'s statistic (..., ) for channels x (..., N; complex) zero-padded to
+    ``padded`` points, from their periodogram at J bins only: X_j = sum_n x_n exp(-i theta_jn), ``table`` (2, J, N)
+    holding cos and -sin of theta_jn. max_j |X_j|^2 ln 2 ``above`` / (``padded`` sum_n |x_n|^2 - sum_j |X_j|^2), zero
+    where the denominator is not positive (see :func:`aasl_gym.frontend.detection_lower_bound`, whose ``above`` is
+    the number of band bins sure to lie above the median and outside the J). Summed in any order: a relative error
+    of a few 1e-15, inside the margin the detector leaves."""
+    rows = np.ascontiguousarray(samples, dtype=complex).reshape(-1, np.shape(samples)[-1])
+    out = np.empty(rows.shape[0])
+    _peak_over_median_bound(rows, np.ascontiguousarray(table, dtype=float), float(padded), float(above), out)
+    return out.reshape(np.shape(samples)[:-1])
 
 
 @_compile

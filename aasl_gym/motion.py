@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from aasl_gym.config import ReceiverConfig, SourceConfig, WorldConfig
+from aasl_gym.geometry import vector_norm
 
 MOTION_KINDS = ("static", "cv", "ca", "ctrv")
 
@@ -201,8 +202,7 @@ def advance_source(state: SourceState, dt: float, region: Box) -> SourceState:
     else:
         position = position + velocity * dt + 0.5 * acceleration * dt**2
         velocity = velocity + acceleration * dt
-        speed = np.linalg.norm(velocity)
-        if state.kind == "ca" and speed > state.max_speed:
+        if state.kind == "ca" and (speed := vector_norm(velocity)) > state.max_speed:
             velocity = velocity * (state.max_speed / speed)
             acceleration = np.zeros(3)
     position, velocity, acceleration = _reflect(position, velocity, acceleration, region)
@@ -253,7 +253,7 @@ def move_receiver(
     command = np.asarray(command, dtype=float)
     if surface_depth is not None:
         command = np.array([command[0], command[1], 0.0])
-    speed = np.linalg.norm(command)
+    speed = vector_norm(command)
     if speed > max_speed:
         command = command * (max_speed / speed)
     target = position + command * dt
@@ -268,7 +268,7 @@ def move_receiver(
         target[:2] *= region.radius / horizontal
         hit = True
     offset = target - keep_out_centre
-    distance = np.linalg.norm(offset)
+    distance = vector_norm(offset)
     if distance < keep_out_radius:
         if surface_depth is not None:  # out to the sphere's circle at the vessel's depth
             across = np.hypot(offset[0], offset[1])

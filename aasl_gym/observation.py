@@ -78,7 +78,8 @@ def encode_observation(observation: Observation, config: EnvConfig) -> np.ndarra
     vector[s["measurement"]] = observation.measurement / np.array([scale, config.source.max_speed])
     vector[s["innovation"]] = observation.innovation / 10.0
     vector[s["time"]] = observation.time / config.episode.duration
-    np.clip(vector, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=vector)
+    # np.clip's numbers (NaN kept), without its dispatch.
+    np.minimum(np.maximum(vector, -OBSERVATION_BOUND, out=vector), OBSERVATION_BOUND, out=vector)
     return vector.astype(np.float32)
 
 

@@ -317,6 +317,27 @@ def test_trajectory_jacobian_matches_central_differences_across_folds(name, spee
     np.testing.assert_array_equal(jacobian, closed_form)
 
 
+@pytest.mark.parametrize("name", ["cv", "ca"])
+def test_the_kept_free_motion_matrices_are_the_motion_itself(name, rng):
+    """A linear model's free-motion matrix, kept per distinct lags: each column is the motion of a unit state (the
+    model's own ``_advance``), a kept matrix is read-only and served again only for the same lags, and the store
+    stays bounded while every matrix it serves stays right."""
+    from aasl_gym.filters import FREE_MATRICES_KEPT
+
+    model = MOTION_MODELS[name](FilterConfig())
+    moving = model.dim - 2
+    for count in [*range(1, FREE_MATRICES_KEPT + 10), 5]:
+        lags = -0.2 * np.arange(count)[::-1]
+        matrix = model.free_motion_matrix(lags)
+        units = np.broadcast_to(np.eye(model.dim)[:moving], (count, moving, model.dim))
+        np.testing.assert_array_equal(matrix, np.swapaxes(model._advance(units, lags[:, None, None])[..., 0:6], 1, 2))
+        assert len(model._free_matrices) <= FREE_MATRICES_KEPT
+    assert model.free_motion_matrix(lags) is model.free_motion_matrix(lags.copy())
+    assert model.free_motion_matrix(lags + 0.1) is not model.free_motion_matrix(lags)
+    with pytest.raises(ValueError):
+        model.free_motion_matrix(lags)[0, 0, 0] = 1.0
+
+
 def test_a_speed_limited_ca_is_continuous_where_its_line_stops_crossing_the_limit():
     """A state faster than the limit whose line of velocities only grazes the limit's ball, turned a little
     either way (crossing it, passing outside): the trajectories of the two stay together - the model holds a

@@ -356,6 +356,75 @@ def test_the_detection_statistic_is_numpys_formula(rng):
     np.testing.assert_allclose(kernels.peak_over_median(np.sqrt(even + 0j), np.arange(4)), [4 / (2.5 / np.log(2))])
 
 
+def _detector_frames(rng, count: int = 60) -> list[np.ndarray]:
+    """Envelope pairs (2, 800) at 4 kHz about a 1 kHz tone: tones of random level, Doppler (up to 12 Hz, beyond the
+    bound's bins) and a second path of random delay and gain, in complex noise within the +-100 Hz band (as the
+    envelopes carry it) or white; some noise alone."""
+    times = np.arange(800) / 4000
+    outside = np.abs(np.fft.fftfreq(800, 1 / 4000)) > 100.0
+    frames = []
+    for i in range(count):
+        pair = (rng.normal(size=(2, 800)) + 1j * rng.normal(size=(2, 800))) * 0.3
+        if i % 2:
+            spectrum = np.fft.fft(pair)
+            spectrum[:, outside] = 0.0
+            pair = np.fft.ifft(spectrum)
+        if i % 6:  # one frame in six is noise alone
+            for row in pair:
+                shift, level = rng.uniform(-12, 12), 10 ** rng.uniform(-1.5, 0.5)
+                second = rng.uniform(-1, 1) * np.exp(2j * np.pi * rng.uniform())
+                row += level * (1 + second) * np.exp(2j * np.pi * (shift * times + rng.uniform()))
+        frames.append(pair)
+    return frames
+
+
+def test_the_detectors_lower_bound_never_exceeds_the_statistic(rng):
+    """:func:`frontend.detection_lower_bound` (a few bins about the carrier and Parseval) against the padded FFT's
+    statistic itself: never above it, over tones inside and beyond the bound's bins, faded ones and noise alone; and
+    a clean tone's bound clears the 13 dB threshold, so the FFT is skipped where a source is heard well."""
+    band = (-100.0, 100.0)
+    for frame in _detector_frames(rng):
+        bound = frontend.detection_lower_bound(frame, band, 4000.0)
+        statistic = frontend.detection_statistic(frame, band, 4000.0)
+        assert np.all(bound <= statistic * (1 + 1e-12)), (bound, statistic)
+    tone = np.exp(2j * np.pi * 1.3 * np.arange(800) / 4000) + 0.05 * rng.normal(size=(2, 800))
+    assert np.all(frontend.detection_lower_bound(tone, band, 4000.0) > 10**1.3)
+    # A band too narrow for the bound's bins (fewer above the median than it takes): no bound.
+    assert np.all(frontend.detection_lower_bound(tone, (-5.0, 5.0), 4000.0) == 0)
+
+
+def test_tone_detected_is_the_statistic_against_its_threshold(rng, monkeypatch):
+    """The detector's decision with the bound's short cut equals the statistic's against the threshold, frame by
+    frame, at thresholds about the frames' own statistics (where the short cut must not decide); and the short cut
+    does skip the FFT for a tone heard well."""
+    band = (-100.0, 100.0)
+    for frame in _detector_frames(rng, 30):
+        statistic = frontend.detection_statistic(frame, band, 4000.0)
+        for threshold in (*statistic, *(statistic * 1.001), *(statistic * 0.999), 20.0):
+            expected = bool(np.all(statistic >= threshold))
+            assert frontend.tone_detected(frame, band, 4000.0, threshold) == expected
+    tone = np.exp(2j * np.pi * 1.3 * np.arange(800) / 4000) + 0.05 * rng.normal(size=(2, 800))
+    monkeypatch.setattr(frontend, "detection_statistic", lambda *args: pytest.fail("the FFT was taken"))
+    assert frontend.tone_detected(tone, band, 4000.0, 20.0)
+
+
+def test_the_detectors_lower_bound_is_its_formula(rng):
+    """:func:`frontend.detection_lower_bound` against its formula in NumPy: with P the 3,200-point periodogram, B the
+    band's bins and C the 13 bins within 6 of the carrier's, max_C P ln 2 (|B| // 2 - |C|) / (3200 sum |x|^2 - sum_C
+    P); and the compiled sums' table is exp(-2 pi i k n / 3200) at those bins."""
+    samples = rng.normal(size=(3, 800)) + 1j * rng.normal(size=(3, 800))
+    samples[1] += 4 * np.exp(2j * np.pi * 2.1 * np.arange(800) / 4000)
+    near = np.arange(-6, 7)
+    table = frontend._near_table(800, 3200, 4000.0, (-100.0, 100.0), 4)
+    np.testing.assert_allclose(table[0] + 1j * table[1], np.exp(-2j * np.pi * np.outer(near, np.arange(800)) / 3200))
+    band = np.flatnonzero(np.abs(np.fft.fftfreq(3200, 1 / 4000)) <= 100.0)
+    power = np.abs(np.fft.fft(samples, 3200)[:, near % 3200]) ** 2
+    rest = 3200 * np.sum(np.abs(samples) ** 2, axis=1) - power.sum(axis=1)
+    expected = power.max(axis=1) * np.log(2) * (len(band) // 2 - len(near)) / rest
+    bound = frontend.detection_lower_bound(samples, (-100.0, 100.0), 4000.0)
+    np.testing.assert_allclose(bound, expected, rtol=1e-12)
+
+
 def test_further_pairs_share_the_robots_recording(rng):
     """Further pairs pair each fixed channel with the robot's channel of the same frame: with every
     channel at the same SNR, two pairs' RD errors e_m - e_a and e_m - e_b share e_m, so their correlation

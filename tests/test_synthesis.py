@@ -24,6 +24,21 @@ def test_waveform_phase_is_continuous_and_its_rate_is_the_frequency(kind, rng):
     np.testing.assert_allclose(rate[away_from_switches], waveform.frequency_at(midpoint)[away_from_switches], atol=1e-3)
 
 
+@pytest.mark.parametrize("kind", ["tone", "sweep", "hop"])
+def test_the_noise_runs_are_the_noise_bins_in_order(kind, rng):
+    """The envelope noise's bins placed as runs of slices: together, in order, exactly the bins the band-pass lets
+    through, each run's draws the next ones in line (so the drawn spectrum is the one an index array places)."""
+    waveform = synthesis.Waveform.random(kind, rng)
+    for count in (960, 1000, 4001):
+        bins = synthesis._noise_bins(count, ENVELOPE_RATE, waveform.carrier, waveform.band)
+        runs = synthesis._noise_runs(count, ENVELOPE_RATE, waveform.carrier, waveform.band)
+        placed = np.concatenate([np.arange(count)[into] for into, _ in runs])
+        taken = np.concatenate([np.arange(len(bins))[draws] for _, draws in runs])
+        np.testing.assert_array_equal(placed, bins)
+        np.testing.assert_array_equal(taken, np.arange(len(bins)))
+        assert all(into.stop - into.start == draws.stop - draws.start for into, draws in runs)
+
+
 def test_noise_power_in_the_band_is_the_noise_level(rng):
     """White noise synthesized for a noise level of N dB has N dB of power inside the receiver band."""
     waveform = synthesis.Waveform.random("tone", rng)
