@@ -318,7 +318,7 @@ def test_trajectory_jacobian_matches_central_differences_across_folds(name, spee
 
 
 @pytest.mark.parametrize("name", ["cv", "ca"])
-def test_the_kept_free_motion_matrices_are_the_motion_itself(name, rng):
+def test_the_kept_free_motion_matrices_are_the_motion_itself(name):
     """A linear model's free-motion matrix, kept per distinct lags: each column is the motion of a unit state (the
     model's own ``_advance``), a kept matrix is read-only and served again only for the same lags, and the store
     stays bounded while every matrix it serves stays right."""
