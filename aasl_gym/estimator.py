@@ -417,8 +417,12 @@ class SourceTracker:
         """Whether the bank's sigma points (H, S, n) take :meth:`_sigma_measurements`' compiled route: the
         frame model and the direct path in one pass (:meth:`_one_pass_models`), every hypothesis able to resolve
         the ripple (one that cannot sends the whole bank down the NumPy route)."""
-        coarse = (position_sd > self.config.filter.ripple_lock_sd) & ~resolved
-        return self._one_pass_models(sigmas[..., 0].size) and not coarse.any()
+        return self._one_pass_models(sigmas[..., 0].size) and not self._coarse(position_sd, resolved).any()
+
+    def _coarse(self, position_sd: np.ndarray, resolved: np.ndarray) -> np.ndarray:
+        """Which hypotheses cannot resolve the ripple (H,): position sd (m, largest axis) above
+        ``filter.ripple_lock_sd`` and no point on the ripple chosen yet (``resolved``)."""
+        return (position_sd > self.config.filter.ripple_lock_sd) & ~resolved
 
     def _one_pass_models(self, count: int) -> bool:
         """Whether ``count`` states take the frame model and the direct path in one compiled pass
@@ -476,7 +480,7 @@ class SourceTracker:
             offset = geometry.wrap_to_period(correction[..., 0] - centre[..., 0], self.correction_period)
             correction[..., 0] = centre[..., 0] + offset
             z = direct + correction
-            coarse = (position_sd > self.config.filter.ripple_lock_sd) & ~resolved
+            coarse = self._coarse(position_sd, resolved)
             if coarse.any():
                 deviation = correction[coarse, 1:] - centre[coarse]
                 # The Merwe weights of rows 1..2n, 1 / (2 (n + lambda)), about the central point.
