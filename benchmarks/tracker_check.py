@@ -64,9 +64,15 @@ def parse_runs(runs: list[str]) -> list[tuple[str, str, int]]:
     """(world, motion, seed) for each WORLD:MOTIONS:FIRST_SEED:COUNT."""
     jobs = []
     for run in runs:
-        world, motions, first, count = run.split(":")
+        parts = run.split(":")
+        if len(parts) != 4 or not (parts[2].isdigit() and parts[3].isdigit()):
+            raise SystemExit(f"{run!r}: expected WORLD:MOTIONS:FIRST_SEED:COUNT, e.g. free:static,cv:1000:6")
+        world, motions, first, count = parts
         if world not in WORLDS:
             raise SystemExit(f"{run!r}: unknown world {world!r}; allowed: {list(WORLDS)}")
+        unknown = sorted(set(motions.split(",")) - set(MATCHED))
+        if unknown:
+            raise SystemExit(f"{run!r}: unknown motion(s) {unknown}; allowed: {list(MATCHED)}")
         jobs += [
             (world, motion, seed)
             for motion in motions.split(",")

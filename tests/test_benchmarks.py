@@ -77,3 +77,36 @@ def test_the_instruction_count_runs_and_counts_what_it_is_asked(monkeypatch, cap
     with pytest.raises(SystemExit):
         bench_instructions.main()
     assert "--counts must be two numbers with 0 <= FEW < MORE, got 5 3" in capsys.readouterr().err
+
+
+def test_the_consistency_report_counts_chi_square_draws_inside_their_intervals(tmp_path):
+    """Statistics drawn from their own chi-square laws (a consistent filter's): about 95 % inside the two-sided 95 %
+    intervals and means near the dof; an unconverged episode is counted, not pooled; the report and its figure are
+    written."""
+    import consistency
+
+    rng = np.random.default_rng(7)
+    rows = [
+        ("free", "cv", 12.0, list(rng.chisquare(3, 4000)), list(rng.chisquare(2, 4000))),
+        ("free", "cv", np.inf, [], []),
+        ("free", "ca", 30.0, list(4 * rng.chisquare(3, 4000)), list(rng.chisquare(2, 4000))),  # overconfident
+    ]
+    summary = consistency.groups(rows)
+    cv, ca = summary
+    assert cv[:4] == ("free", "cv", 1, 2) and cv[4].size == 4000
+    assert abs(consistency.share(cv[4], consistency.NEES_BOUNDS) - 0.95) < 0.015
+    assert abs(consistency.share(cv[5], consistency.NIS_BOUNDS) - 0.95) < 0.015
+    assert consistency.share(ca[4], consistency.NEES_BOUNDS) < 0.7
+    assert "| free | cv | 1 / 2 | 4000 |" in "\n".join(consistency.table(summary))
+    consistency.write_report(tmp_path, summary)
+    assert (tmp_path / "consistency.md").read_text().count("| free |") == 2
+    assert (tmp_path / "consistency.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_malformed_run_names_what_is_expected():
+    from tracker_check import parse_runs
+
+    assert parse_runs(["free:static,cv:10:2"]) == [("free", m, s) for m in ("static", "cv") for s in (10, 11)]
+    for bad, message in (("free:cv:10", "WORLD:MOTIONS"), ("moon:cv:1:2", "unknown world"), ("free:cw:1:2", "cw")):
+        with pytest.raises(SystemExit, match=message):
+            parse_runs([bad])
