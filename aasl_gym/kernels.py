@@ -644,7 +644,8 @@ def whitened_chain(local: np.ndarray, motion: np.ndarray, white: np.ndarray) -> 
 
 # Starts per block of :func:`_fit_terms`: its scratch rows (about a hundred per start) then stay in the core's caches.
 FIT_BLOCK = 64
-LANES = 8  # starts per pass of :func:`_fit_terms`' vectorised loops as LLVM compiles them (AVX2: 2 x 4 doubles)
+# Starts per pass of :func:`_fit_terms`' vectorised loops as LLVM compiles them: one AVX-512 vector, two AVX2.
+LANES = 8
 
 
 @numba.njit(inline="always", error_model="numpy")
