@@ -295,6 +295,10 @@ def phasor_multipath(
     divided by the wavenumber k = 2 pi f0 / c. It is returned continuous (unwrapped about the direct RD:
     RD_app = RD + (phi_f - phi_m) / k with phi the phase of each receiver's multipath factor), and the
     apparent RRD is its exact time derivative.
+
+    This is the model written with NumPy, each receiver's phase differentiated in time. The sensors and filters
+    run its compiled form (:func:`aasl_gym.kernels.phasor_measurement`, through
+    :func:`aasl_gym.measurement_models.multipath_measurement`), which the tests hold to this one.
     """
     gains = (surface_reflection, bed_reflection)
     # Each receiver's direct range and range rate come with its factor: this model runs on every LC-MAP

@@ -66,6 +66,51 @@ def test_the_phasor_loops_broadcast_like_one_point_at_a_time():
     np.testing.assert_allclose(state_jacobian[2, 3], one[1], rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("shape", [(), (300,), (6, 50)], ids=["point", "batch", "grid"])
+def test_the_compiled_phasor_measurement_is_the_numpy_model(shape):
+    """The phasor model's [RD, RRD] from the compiled pass (the RRD as the RD's gradients along both velocities)
+    against NumPy's, which differentiates each receiver's phase in time: two forms of one model, to rounding (the RD
+    modulo a wavelength: a receiver's phase can round to either side of its branch cut)."""
+    rng = np.random.default_rng(5)
+    source, mobile = rng.uniform([-30, -30, -58], [30, 30, -1], (2,) + shape + (3,))
+    velocity, mobile_velocity = rng.uniform(-1.5, 1.5, (2,) + shape + (3,))
+    p = PROPAGATION
+    channel = (p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber)
+    measured = kernels.phasor_measurement(source, velocity, mobile, mobile_velocity, FIXED, *channel)
+    rd, rrd = geometry.phasor_multipath(source, velocity, mobile, mobile_velocity, FIXED, *channel)
+    assert measured.shape == shape + (2,)
+    wavelength = 2 * np.pi / p.wavenumber
+    np.testing.assert_allclose(geometry.wrap_to_period(measured[..., 0] - rd, wavelength), 0.0, atol=1e-11)
+    np.testing.assert_allclose(measured[..., 1], rrd, rtol=1e-9, atol=1e-11)
+
+
+def test_the_compiled_phasor_rrd_is_the_rate_of_its_rd():
+    """Both hydrophone paths moving for +-1 us: the compiled RRD is the central difference of the compiled RD (an
+    independent check of the rate's formula, the fixed hydrophone still), and a source at rest beside a robot at rest
+    gives no rate; one source against many robots broadcasts."""
+    rng = np.random.default_rng(6)
+    source, mobile = rng.uniform([-30, -30, -58], [30, 30, -1], (2, 200, 3))
+    velocity, mobile_velocity = rng.uniform(-1.5, 1.5, (2, 200, 3))
+    p = PROPAGATION
+    channel = (p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber)
+
+    def rd(step):
+        return kernels.phasor_measurement(
+            source + step * velocity, velocity, mobile + step * mobile_velocity, mobile_velocity, FIXED, *channel
+        )[..., 0]
+
+    step = 1e-6
+    rate = kernels.phasor_measurement(source, velocity, mobile, mobile_velocity, FIXED, *channel)[..., 1]
+    difference = geometry.wrap_to_period(rd(step) - rd(-step), 2 * np.pi / p.wavenumber) / (2 * step)
+    np.testing.assert_allclose(rate, difference, atol=2e-5)
+    still = kernels.phasor_measurement(source, 0 * velocity, mobile, 0 * mobile_velocity, FIXED, *channel)
+    np.testing.assert_array_equal(still[..., 1], 0.0)
+    one = kernels.phasor_measurement(source[0], velocity[0], mobile, mobile_velocity, FIXED, *channel)
+    np.testing.assert_array_equal(
+        one[7], kernels.phasor_measurement(source[0], velocity[0], mobile[7], mobile_velocity[7], FIXED, *channel)
+    )
+
+
 def test_the_phasor_loops_take_one_fixed_hydrophone():
     with pytest.raises(ValueError, match=r"fixed must be one hydrophone position of shape \(3,\)"):
         kernels.phasor_paths(np.zeros(3), np.ones(3), np.zeros((2, 3)), 60.0, -0.9, 0.3, 4.0)
@@ -177,6 +222,7 @@ def test_every_loop_is_compiled():
         "_ripple_measurements",
         "_constant_velocity_prediction",
         "_unscented_updates",
+        "_rate_loop",
     )
     for name in loops + compiled:
         assert isinstance(getattr(kernels, name), numba.core.dispatcher.Dispatcher), name
