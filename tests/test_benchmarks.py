@@ -96,6 +96,7 @@ def test_the_consistency_report_counts_chi_square_draws_inside_their_intervals(t
     assert cv[:4] == ("free", "cv", 1, 2) and cv[4].size == 4000
     assert abs(consistency.share(cv[4], consistency.NEES_BOUNDS) - 0.95) < 0.015
     assert abs(consistency.share(cv[5], consistency.NIS_BOUNDS) - 0.95) < 0.015
+    assert abs(cv[4].mean() - 3) < 0.15 and abs(cv[5].mean() - 2) < 0.1
     assert consistency.share(ca[4], consistency.NEES_BOUNDS) < 0.7
     assert "| free | cv | 1 / 2 | 4000 |" in "\n".join(consistency.table(summary))
     consistency.write_report(tmp_path, summary)

@@ -85,9 +85,9 @@ def test_the_compiled_phasor_measurement_is_the_numpy_model(shape):
 
 
 def test_the_compiled_phasor_rrd_is_the_rate_of_its_rd():
-    """Both hydrophone paths moving for +-1 us: the compiled RRD is the central difference of the compiled RD (an
-    independent check of the rate's formula, the fixed hydrophone still), and a source at rest beside a robot at rest
-    gives no rate; one source against many robots broadcasts."""
+    """The source and the robot moved +-1 us along their velocities: the compiled RRD is the central difference of the
+    compiled RD (an independent check of the rate's formula, the fixed hydrophone still); a source and a robot at rest
+    give no rate; one source against many robots gives each robot what it gives alone."""
     rng = np.random.default_rng(6)
     source, mobile = rng.uniform([-30, -30, -58], [30, 30, -1], (2, 200, 3))
     velocity, mobile_velocity = rng.uniform(-1.5, 1.5, (2, 200, 3))
