@@ -8,6 +8,10 @@ comparisons are paired. Example (the reference paper's initializer study):
 
     python evaluate.py --policies helix --initializers lcmap naive random tdoa-ls \\
         --motions static cv ca ctrv --episodes 100 --reflections off --out reports/initializers
+
+Scripted policies and models trained on a single-pod id fly one pod. A facility (``--scenario facility``) runs on
+AASL-Facility-v0: its own patrol is the policy ``facility`` (the default there), and a model trained on that id
+flies it too; a policy that does not fit the config's pods is refused by name.
 """
 
 from __future__ import annotations
@@ -18,8 +22,10 @@ import sys
 from pathlib import Path
 
 from aasl_gym.config import INITIALIZERS, MEASUREMENT_MODES, MULTIPATH_MODELS, ConfigError, EnvConfig
+from aasl_gym.registration import FACILITY_ID, check_env_fits
 from aasl_gym.scenarios import add_scenario_arguments, command_line_config
 from aasl_gym.study.jobs import (
+    FACILITY_PATROL,
     FILTER_CHOICES,
     MOTIONS,
     Job,
@@ -45,6 +51,8 @@ from agents import POLICIES as SCRIPTED_POLICIES  # what agents.make_policy buil
 from agents.study import run_episode, trained_model
 
 ROOT = Path(__file__).resolve().parent
+SINGLE_POD_POLICIES = ["helix", "spiral", "greedy"]  # the default policies of a single-pod world
+POLICY_NAMES = (*SCRIPTED_POLICIES, FACILITY_PATROL)
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -53,8 +61,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add(
         "--policies",
         nargs="+",
-        default=["helix", "spiral", "greedy"],
-        help=f"{' '.join(SCRIPTED_POLICIES)}, or ALGO:PATH",
+        default=None,
+        help=f"{' '.join(POLICY_NAMES)}, or ALGO:PATH (default: {' '.join(SINGLE_POD_POLICIES)}; "
+        f"in a facility, {FACILITY_PATROL})",
     )
     add("--motions", nargs="+", default=["static", "cv", "ca", "ctrv"], choices=MOTIONS)
     add("--initializers", nargs="+", default=["lcmap"], choices=INITIALIZERS)
@@ -86,9 +95,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.trajectories < 0:
         parser.error(f"--trajectories must be >= 0, got {args.trajectories}")
     check_backend_arguments(parser, args)
-    for policy in args.policies:
-        if ":" not in policy and policy not in SCRIPTED_POLICIES:
-            parser.error(f"--policies: unknown policy {policy!r}; allowed: {' '.join(SCRIPTED_POLICIES)}, or ALGO:PATH")
+    for policy in args.policies or ():
+        if ":" not in policy and policy not in POLICY_NAMES:
+            parser.error(f"--policies: unknown policy {policy!r}; allowed: {' '.join(POLICY_NAMES)}, or ALGO:PATH")
     return args
 
 
@@ -112,15 +121,25 @@ def study_grid(args: argparse.Namespace) -> StudyGrid:
     )
 
 
+def policy_env(policy: str) -> str:
+    """The env id ``policy`` flies: a trained model's own (loaded here, its errors named), the facility's for its
+    patrol, AASL-v0 for the scripted ones (:func:`agents.study.run_episode`)."""
+    if ":" in policy:
+        try:
+            return trained_model(policy).env_id
+        except (ValueError, FileNotFoundError, ImportError) as exc:
+            raise ConfigError(f"--policies: {exc}") from exc
+    return FACILITY_ID if policy == FACILITY_PATROL else "AASL-v0"
+
+
 def prepare(args: argparse.Namespace) -> tuple[EnvConfig, list[Job]]:
     """The config and the jobs; a :class:`ConfigError` carries the message for bad input."""
     config = command_line_config(args.scenario, args.config, default_config_path())
+    if args.policies is None:
+        args.policies = [FACILITY_PATROL] if config.facility.pods > 1 else SINGLE_POD_POLICIES
     for policy in args.policies:
-        if ":" in policy:
-            try:
-                trained_model(policy)
-            except (ValueError, FileNotFoundError, ImportError) as exc:
-                raise ConfigError(f"--policies: {exc}") from exc
+        remedy = f" (--policies {FACILITY_PATROL}, or a model trained on it)"
+        check_env_fits(policy_env(policy), config, f"--policies {policy}", remedy)
     jobs = build_jobs(study_grid(args), config)
     check_overrides(jobs[0])  # once, before any worker starts: the error names the override
     return config, jobs

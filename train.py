@@ -23,7 +23,7 @@ import yaml
 
 from aasl_gym.config import ConfigError, save_config
 from aasl_gym.io import atomic_write_text
-from aasl_gym.registration import ENV_IDS
+from aasl_gym.registration import ALL_IDS, check_env_fits
 from aasl_gym.scenarios import add_scenario_arguments, command_line_config
 from agents.training import ALGORITHMS, load_training, training_record
 
@@ -34,7 +34,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=ALGORITHMS, default="ppo")
     parser.add_argument(
-        "--env", choices=sorted(ENV_IDS), default=None, help="default: schedule.env in --hyperparameters"
+        "--env",
+        choices=sorted(ALL_IDS),
+        default=None,
+        help="default: schedule.env in --hyperparameters (a facility, --scenario facility, trains on AASL-Facility-v0)",
     )
     add_scenario_arguments(parser)
     parser.add_argument("--hyperparameters", type=Path, default=ROOT / "configs" / "training.yaml")
@@ -63,6 +66,12 @@ def main(argv=None) -> int:
         print(f"error: --hyperparameters: {exc}", file=sys.stderr)
         return 2
     run = schedule.replace(env=args.env, timesteps=args.timesteps, n_envs=args.n_envs)
+    try:
+        option = "--env" if args.env else f"--hyperparameters: schedule.env {run.env}"
+        check_env_fits(run.env, config, option, remedy=" (--env AASL-Facility-v0)")
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     out = args.out or ROOT / "runs" / f"{args.algo}-{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
 

@@ -28,7 +28,7 @@ from stable_baselines3.common.utils import get_latest_run_id
 
 from aasl_gym.config import ConfigError, EnvConfig
 from aasl_gym.io import atomic_write, atomic_write_text
-from aasl_gym.registration import ENV_IDS
+from aasl_gym.registration import ALL_IDS, FACILITY_ID
 from agents.rollout import play_episode
 from agents.training import ALGORITHMS, Schedule
 
@@ -113,8 +113,8 @@ def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
             raise ValueError(f"model {spec!r}: {stats} holds no VecNormalize statistics")
         normalizer.training = False
     policy = LoadedPolicy(model, normalizer)
-    if policy.env_id not in ENV_IDS:
-        raise ValueError(f"model {spec!r}: trained on env {policy.env_id!r}, which is not one of {sorted(ENV_IDS)}")
+    if policy.env_id not in ALL_IDS:
+        raise ValueError(f"model {spec!r}: trained on env {policy.env_id!r}, which is not one of {sorted(ALL_IDS)}")
     return policy
 
 
@@ -274,6 +274,8 @@ def train(
 
     env_id = f"aasl_gym:{schedule.env}"
     env_kwargs: dict[str, Any] = {"config": config}
+    if schedule.env == FACILITY_ID:
+        env_kwargs["scenario"] = None  # the config is complete: not over the id's default scenario
     vec_cls = SubprocVecEnv if schedule.n_envs > 1 else None
     envs = make_vec_env(env_id, n_envs=schedule.n_envs, seed=seed, env_kwargs=env_kwargs, vec_env_cls=vec_cls)
     try:

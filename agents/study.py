@@ -13,7 +13,7 @@ import numpy as np
 from aasl_gym import metrics
 from aasl_gym.env import AASLEnv
 from aasl_gym.facility_env import FacilityEnv
-from aasl_gym.registration import ENV_IDS
+from aasl_gym.registration import ENV_IDS, FACILITY_ID
 from aasl_gym.study.array_comparison import array_row, time_calls
 from aasl_gym.study.jobs import FACILITY_PATROL, Job
 from aasl_gym.study.log import Row
@@ -92,7 +92,7 @@ def run_array_trial(job: Job) -> Row:
 def _episode_env(job: Job) -> tuple[AASLEnv, Any]:
     """The job's env and the policy that flies it. Scripted policies fly ``AASL-v0``; a trained model flies
     the env it was trained on (a residual model needs its patrol's command); ``facility`` is the facility's
-    own patrol (a zero residual on ``AASL-Facility-v0``)."""
+    own patrol (a zero residual on ``AASL-Facility-v0``), where a model trained on that id flies too."""
     overrides = {
         "source_motion": job.motion,
         "initializer": job.initializer,
@@ -102,6 +102,8 @@ def _episode_env(job: Job) -> tuple[AASLEnv, Any]:
     if job.policy == FACILITY_PATROL:
         return FacilityEnv(job.config, scenario=None, **overrides), ZeroPolicy()
     policy = trained_model(job.policy) if ":" in job.policy else None
+    if policy is not None and policy.env_id == FACILITY_ID:
+        return FacilityEnv(job.config, scenario=None, **overrides), policy
     patrol = ENV_IDS[policy.env_id] if policy is not None else None
     env = AASLEnv(job.config, patrol=patrol, **overrides)
     if policy is None:

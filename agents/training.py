@@ -18,7 +18,7 @@ import yaml
 
 from aasl_gym.config import ConfigError, build_section, require, require_choice, to_dict
 from aasl_gym.io import read_yaml
-from aasl_gym.registration import ENV_IDS
+from aasl_gym.registration import ALL_IDS
 
 ALGORITHMS = ("ppo", "sac", "td3", "a2c", "recurrent-ppo")
 
@@ -40,7 +40,7 @@ class Schedule:
     normalize_reward: bool = False  # running scale of the discounted return (VecNormalize)
 
     def __post_init__(self) -> None:
-        require_choice(self.env, tuple(sorted(ENV_IDS)), "schedule.env")
+        require_choice(self.env, tuple(sorted(ALL_IDS)), "schedule.env")
         for name in ("timesteps", "n_envs", "eval_every", "eval_episodes", "checkpoint_every"):
             value = getattr(self, name)
             require(

@@ -113,6 +113,41 @@ def test_bad_training_input_is_named(tiny, tmp_path, capsys):
     assert "dqn" in capsys.readouterr().err
 
 
+def test_a_facility_trains_on_its_own_env_and_is_evaluated_there(tiny, tmp_path, capsys):
+    """A facility trains on AASL-Facility-v0 and its model is evaluated there, beside the facility's own patrol (the
+    default policy in a facility); an env or a policy that does not fit the config's pods is refused by name (a
+    single-pod id would drop the facility's other pods) before anything is written."""
+    import json
+
+    config, hyper = tiny
+    short = tmp_path / "facility.yaml"  # over the scenario: the attack within the tiny episode
+    short.write_text(yaml.safe_dump({**yaml.safe_load(config.read_text()), "facility": {"onset_range": [1.0, 3.0]}}))
+    out = tmp_path / "run"
+    flags = ["--config", str(short), "--hyperparameters", str(hyper), "--out", str(out)]
+    assert train.main(["--scenario", "facility", *flags]) == 2
+    assert "AASL-v0 flies one pod and would ignore this config's facility of 8 pods" in capsys.readouterr().err
+    assert train.main(["--env", "AASL-Facility-v0", *flags[2:], "--config", str(config)]) == 2
+    assert "--env: AASL-Facility-v0 needs a facility" in capsys.readouterr().err
+    assert not out.exists()
+    assert train.main(["--env", "AASL-Facility-v0", "--scenario", "facility", *flags]) == 0
+    model = f"ppo:{out / 'model.zip'}"
+    assert load_model(model).env_id == "AASL-Facility-v0"
+
+    facility = ["--scenario", "facility", "--config", str(short), "--motions", "cv", "--episodes", "1"]
+    assert evaluate.prepare(evaluate.parse_args(facility))[1][0].policy == "facility"
+    assert evaluate.main([*facility, "--policies", "helix", "--out", str(tmp_path / "refused")]) == 2
+    assert "--policies helix: AASL-v0 flies one pod" in capsys.readouterr().err
+    for policy in ("facility", model):  # in the default world
+        assert evaluate.main(["--policies", policy, "--out", str(tmp_path / "refused")]) == 2
+        assert f"--policies {policy}: AASL-Facility-v0 needs a facility" in capsys.readouterr().err
+    assert not (tmp_path / "refused").exists()
+    report = tmp_path / "eval"
+    assert evaluate.main([*facility, "--policies", "facility", model, "--no-plots", "--out", str(report)]) == 0
+    rows = json.loads((report / "results.json").read_text())["episodes"]
+    assert sorted(row["policy"] for row in rows) == sorted(["facility", model])
+    assert all({"pod", "source_pod", "detection_time"} <= set(row) for row in rows)
+
+
 def test_missing_statistics_file_is_fine_and_a_corrupt_one_is_named(tiny, tmp_path):
     config, hyper = tiny
     out = tmp_path / "run"
