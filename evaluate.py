@@ -136,9 +136,9 @@ def prepare(args: argparse.Namespace) -> tuple[EnvConfig, list[Job]]:
     """The config and the jobs; a :class:`ConfigError` carries the message for bad input."""
     config = command_line_config(args.scenario, args.config, default_config_path())
     if args.policies is None:
-        args.policies = [FACILITY_PATROL] if config.facility.pods > 1 else SINGLE_POD_POLICIES
+        args.policies = [FACILITY_PATROL] if config.facility.pods > 1 else list(SINGLE_POD_POLICIES)
+    remedy = f" (--policies {FACILITY_PATROL}, or a model trained on it)"
     for policy in args.policies:
-        remedy = f" (--policies {FACILITY_PATROL}, or a model trained on it)"
         check_env_fits(policy_env(policy), config, f"--policies {policy}", remedy)
     jobs = build_jobs(study_grid(args), config)
     check_overrides(jobs[0])  # once, before any worker starts: the error names the override

@@ -23,7 +23,7 @@ import yaml
 
 from aasl_gym.config import ConfigError, save_config
 from aasl_gym.io import atomic_write_text
-from aasl_gym.registration import ALL_IDS, check_env_fits
+from aasl_gym.registration import ALL_IDS, FACILITY_ID, check_env_fits
 from aasl_gym.scenarios import add_scenario_arguments, command_line_config
 from agents.training import ALGORITHMS, load_training, training_record
 
@@ -67,7 +67,7 @@ def main(argv=None) -> int:
         return 2
     run = schedule.replace(env=args.env, timesteps=args.timesteps, n_envs=args.n_envs)
     try:
-        option = "--env" if args.env else f"--hyperparameters: schedule.env {run.env}"
+        option = "--env" if args.env else "--hyperparameters: schedule.env"
         check_env_fits(run.env, config, option, remedy=" (--env AASL-Facility-v0)")
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -87,7 +87,11 @@ def main(argv=None) -> int:
     save_config(config, out / "config.yaml")
     record = training_record(args.algo, args.seed, schedule, run, hyperparameters)
     atomic_write_text(out / "hyperparameters.yaml", yaml.safe_dump(record))
-    print(f"saved {model_path} (evaluate with: python evaluate.py --policies helix {args.algo}:{model_path})")
+    beside = "facility" if run.env == FACILITY_ID else "helix"  # the baseline: the facility's own patrol, or the helix
+    print(
+        f"saved {model_path} (evaluate with: python evaluate.py --config {out / 'config.yaml'} "
+        f"--policies {beside} {args.algo}:{model_path})"
+    )
     return 0
 
 

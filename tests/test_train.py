@@ -131,6 +131,7 @@ def test_a_facility_trains_on_its_own_env_and_is_evaluated_there(tiny, tmp_path,
     assert not out.exists()
     assert train.main(["--env", "AASL-Facility-v0", "--scenario", "facility", *flags]) == 0
     model = f"ppo:{out / 'model.zip'}"
+    assert f"evaluate.py --config {out / 'config.yaml'} --policies facility {model}" in capsys.readouterr().out
     assert load_model(model).env_id == "AASL-Facility-v0"
 
     facility = ["--scenario", "facility", "--config", str(short), "--motions", "cv", "--episodes", "1"]
