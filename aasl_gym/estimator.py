@@ -91,7 +91,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -123,6 +123,7 @@ from aasl_gym.initializers import (
 )
 from aasl_gym.measurement_models import (
     FrameAveragedPhasor,
+    PhasorModel,
     Propagation,
     direct_measurement,
     frame_offsets,
@@ -315,10 +316,14 @@ class SourceTracker:
         # The filter's measurement model (p, v, p_m, v_m, p_f) -> [RD, RRD], and the one windows (LC-MAP,
         # re-seeding) are weighed with: the direct path where the filter's model has a ripple (their
         # burst R then carries the ripple as noise, ``multipath_noise``). The direct path is the function
-        # itself, so that its receiver Jacobian takes the closed form.
-        self.measurement_function = (
-            direct_measurement if multipath == "none" else partial(multipath_measurement, multipath, self.propagation)
-        )
+        # itself and the phasor model an object with its Jacobians, so that neither is differenced.
+        self.measurement_function: Callable[..., np.ndarray]
+        if multipath == "none":
+            self.measurement_function = direct_measurement
+        elif multipath == "phasor":
+            self.measurement_function = PhasorModel(self.propagation)
+        else:
+            self.measurement_function = partial(multipath_measurement, multipath, self.propagation)
         if self.ripple and config.measurement.mode == "signal" and f.frame_samples > 1 and self.wavelength:
             # The front end's RD and RRD are a frame's mean and slope: at an interference null the phasor
             # model's centre value misses them by many sd (tuning seeds 0-2: 12 % of RD frames beyond 3 sd).

@@ -136,6 +136,35 @@ def frame_offsets(duration: float, samples: int) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
+class PhasorModel:
+    """The phasor model's instantaneous [RD, RRD] (:func:`multipath_measurement`'s ``phasor``, a geometric world's),
+    with both of its Jacobians (:func:`aasl_gym.kernels.phasor_linearized`): a window fit takes them from one call
+    instead of differencing the model in every state component. A measurement function: (p, v, p_m, v_m, p_f) ->
+    (..., 2)."""
+
+    propagation: Propagation
+
+    def __call__(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+        return multipath_measurement("phasor", self.propagation, position, velocity, mobile, mobile_velocity, fixed)
+
+    def linearize(
+        self, position, velocity, mobile, mobile_velocity, fixed
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """[RD, RRD] (..., 2), d[RD, RRD] / d[p, v] and d[RD, RRD] / d[p_m, v_m] (..., 2, 6 each)."""
+        p = self.propagation
+        channel = (p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber)
+        return kernels.phasor_linearized(position, velocity, mobile, mobile_velocity, fixed, *channel)
+
+    def state_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+        """d[RD, RRD] / d[p, v], shape (..., 2, 6)."""
+        return self.linearize(position, velocity, mobile, mobile_velocity, fixed)[1]
+
+    def receiver_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
+        """d[RD, RRD] / d[p_m, v_m], shape (..., 2, 6)."""
+        return self.linearize(position, velocity, mobile, mobile_velocity, fixed)[2]
+
+
+@dataclass(frozen=True, eq=False)
 class FrameAveragedPhasor:
     """The phasor model's [RD, RRD] over one frame as a tone front end measures them
     (:func:`frame_averaged` of :func:`phasor_range_difference` at ``offsets``, s), with both of its
@@ -170,11 +199,12 @@ class FrameAveragedPhasor:
 
 
 def state_jacobian_function(measurement_function):
-    """The closed-form d[RD, RRD] / d[p, v] of a measurement model, (p, v, p_m, v_m, p_f) -> (..., 2, 6),
-    or None where it has none (the state Jacobian is then taken by differences)."""
+    """A measurement model's own d[RD, RRD] / d[p, v], (p, v, p_m, v_m, p_f) -> (..., 2, 6) - closed forms, but for
+    the phasor model's RRD position columns (:func:`aasl_gym.kernels.phasor_linearized`) - or None where it has none
+    (the state Jacobian is then taken by differences of the model)."""
     if measurement_function is direct_measurement:
         return geometry.direct_jacobian
-    if isinstance(measurement_function, FrameAveragedPhasor):
+    if isinstance(measurement_function, (PhasorModel, FrameAveragedPhasor)):
         return measurement_function.state_jacobian
     return None
 
@@ -198,8 +228,9 @@ def direct_receiver_jacobian(position, velocity, mobile, mobile_velocity) -> np.
 
 def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
     """d[RD, RRD] / d[p_m, v_m] of a measurement model, shape ``(..., 2, 6)``: the closed form for the
-    direct path, else central differences in the mobile hydrophone's position (``RECEIVER_STEP``) and
-    velocity (``RECEIVER_RATE_STEP``). ``measurement_function`` is (p, v, p_m, v_m, p_f) -> (..., 2).
+    direct path, the phasor models' own (:class:`PhasorModel`, :class:`FrameAveragedPhasor`), else central
+    differences in the mobile hydrophone's position (``RECEIVER_STEP``) and velocity (``RECEIVER_RATE_STEP``).
+    ``measurement_function`` is (p, v, p_m, v_m, p_f) -> (..., 2).
 
     Under multipath the apparent RD moves with the receiver's position far faster than the direct
     path's -u_m near an interference null, which is why R_eff needs the model's own H_r. A frame's
@@ -208,7 +239,7 @@ def receiver_jacobian(measurement_function, position, velocity, mobile, mobile_v
     """
     if measurement_function is direct_measurement:
         return direct_receiver_jacobian(position, velocity, mobile, mobile_velocity)
-    if isinstance(measurement_function, FrameAveragedPhasor):
+    if isinstance(measurement_function, (PhasorModel, FrameAveragedPhasor)):
         return measurement_function.receiver_jacobian(position, velocity, mobile, mobile_velocity, fixed)
     position, velocity = np.asarray(position, dtype=float), np.asarray(velocity, dtype=float)
     batch = np.broadcast_shapes(

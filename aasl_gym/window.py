@@ -14,17 +14,20 @@ near an interference null disagree without dragging the fit. The RD residual is 
 wavelength where the burst says so (``Burst.residual_period``). The prior (mean ``m``, sd ``s``, an
 infinite sd for none) keeps the velocity, the turn rate or acceleration and the biases plausible.
 
-The Jacobian chains the measurement model's closed form (the direct path, the frame-averaged phasor
-model) with the motion model's trajectory; a model without one is differenced over the whole window
-(a few dozen model evaluations per step, and 0.1 mm steps blur an interference null). The information
-``J^T W J`` at the solution is the covariance a filter restarts with.
+The Jacobian chains the measurement model's own (the direct path's and the frame-averaged phasor model's closed
+forms; the geometric worlds' phasor model's, whose RRD's position columns are a central difference in time of the
+RD's gradients) with the motion model's trajectory; a model without one (the first-order ``linear`` model) is
+differenced over the whole window (a few dozen model evaluations per step, and 0.1 mm steps blur an interference
+null). The information ``J^T W J`` at the solution is the covariance a filter restarts with.
 
 Three routes, one algorithm. Under the direct path and the frame-averaged phasor model - every fit of both worlds
 but a geometric world's multipath model - one compiled pass per start gives the loss and the normal equations
 (:func:`aasl_gym.kernels.fit_terms`); for a motion model whose free motion is one matrix for every state (CV, CA
 without a speed limit) the pass also runs and folds the trajectories and the whole fit is compiled
-(:func:`aasl_gym.kernels.fit`). The phasor model with fewer starts than one vector's worth (``kernels.LANES``),
-and a model without a closed form, take NumPy's terms and LAPACK's solve. The routes agree to rounding
+(:func:`aasl_gym.kernels.fit`). The frame-averaged phasor model with fewer starts than one vector's worth
+(``kernels.LANES``), the geometric worlds' phasor model and a model without a Jacobian of its own take NumPy's
+Levenberg-Marquardt and LAPACK's solve, the phasor models' per-sample terms and chained Jacobian compiled
+(:func:`aasl_gym.kernels.window_terms`, :func:`aasl_gym.kernels.whitened_chain`). The routes agree to rounding
 (``tests/test_window.py``). (Until session 32 the direct path kept the NumPy route, to keep the free-field
 studies' bits; compiled, a one-start re-seed fit on 260 samples takes 0.9 ms against 2.2.)
 
@@ -110,10 +113,11 @@ def _evaluate(burst: Burst, model: MotionModel, states: np.ndarray):
     shares one set of multipath factors between the three), d[RD, RRD]/d[p, v] along each
     trajectory (C, K, 2, 6); else None, and :func:`_jacobian` evaluates the model again.
 
-    A model with a ``linearize`` method (the frame-averaged phasor model) takes the compiled per-sample terms
-    (:func:`aasl_gym.kernels.window_terms`); the direct path keeps the NumPy form here. A fit of either model takes
-    the compiled pass instead (:func:`_compiled_model`); this form serves the window chi-square
-    (:func:`whitened_residuals`), the few-start phasor fits and the tests' reference route."""
+    A model with a ``linearize`` method (the phasor models) takes the compiled per-sample terms
+    (:func:`aasl_gym.kernels.window_terms`); the direct path keeps the NumPy form here. A fit of the direct path or of
+    the frame model takes the compiled pass instead (:func:`_compiled_model`); this form serves the window chi-square
+    (:func:`whitened_residuals`), the geometric worlds' phasor fits, the few-start frame-model fits and the tests'
+    reference route."""
     trajectory = _trajectory(burst, model, states)
     linearize = getattr(burst.measurement_function, "linearize", None)
     if linearize is None:

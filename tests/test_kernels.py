@@ -111,6 +111,41 @@ def test_the_compiled_phasor_rrd_is_the_rate_of_its_rd():
     )
 
 
+@pytest.mark.parametrize("shape", [(), (400,), (8, 50)], ids=["point", "batch", "grid"])
+def test_the_phasor_models_jacobians_are_its_differences(shape):
+    """:func:`kernels.phasor_linearized`: the values are the compiled model's to the last bit, and both Jacobians are
+    central differences of that model (1e-6 m or m/s in each of p, v, p_m, v_m apart; the RD taken modulo a
+    wavelength) - an independent check of the RRD's position columns, which the function takes as the time
+    derivative of the RD's gradients. Near an interference null the RD's curvature makes both differences err;
+    elsewhere they agree to 1e-6 or better."""
+    rng = np.random.default_rng(8)
+    source, mobile = rng.uniform([-30, -30, -58], [30, 30, -1], (2,) + shape + (3,))
+    velocity, mobile_velocity = rng.uniform(-1.5, 1.5, (2,) + shape + (3,))
+    p = PROPAGATION
+    channel = (p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber)
+    values, local, receiver = kernels.phasor_linearized(source, velocity, mobile, mobile_velocity, FIXED, *channel)
+    assert values.shape == shape + (2,) and local.shape == receiver.shape == shape + (2, 6)
+    measured = kernels.phasor_measurement(source, velocity, mobile, mobile_velocity, FIXED, *channel)
+    assert np.array_equal(values, measured)
+    state = [source, velocity, mobile, mobile_velocity]
+    step = 1e-6
+    for jacobian, first in ((local, 0), (receiver, 2)):
+        for column in range(6):
+            ahead, behind = [list(state), list(state)]
+            shift = step * np.eye(3)[column % 3]
+            moved = first + column // 3
+            ahead[moved], behind[moved] = state[moved] + shift, state[moved] - shift
+            difference = kernels.phasor_measurement(*ahead, FIXED, *channel) - kernels.phasor_measurement(
+                *behind, FIXED, *channel
+            )
+            difference[..., 0] = geometry.wrap_to_period(difference[..., 0], 2 * np.pi / p.wavenumber)
+            error = np.abs(jacobian[..., column] - difference / (2 * step))
+            assert np.median(error) < 1e-6 and np.quantile(error, 0.99) < 1e-3 and error.max() < 1e-2, column
+    still = kernels.phasor_linearized(source, 0 * velocity, mobile, 0 * mobile_velocity, FIXED, *channel)
+    np.testing.assert_array_equal(still[1][..., 1, 0:3], 0.0)  # no motion, no rate to move
+    np.testing.assert_array_equal(still[2][..., 1, 0:3], 0.0)
+
+
 def test_the_phasor_loops_take_one_fixed_hydrophone():
     with pytest.raises(ValueError, match=r"fixed must be one hydrophone position of shape \(3,\)"):
         kernels.phasor_paths(np.zeros(3), np.ones(3), np.zeros((2, 3)), 60.0, -0.9, 0.3, 4.0)

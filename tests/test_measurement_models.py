@@ -11,6 +11,7 @@ from aasl_gym.config import EnvConfig
 from aasl_gym.estimator import SourceTracker
 from aasl_gym.filters import merwe_sigma_points, merwe_weights
 from aasl_gym.measurement_models import (
+    PhasorModel,
     Propagation,
     direct_measurement,
     multipath_measurement,
@@ -48,15 +49,17 @@ def test_receiver_jacobian_of_the_direct_path_is_the_closed_form(rng):
     np.testing.assert_allclose(jacobian[:, 1, :3], -(relative - unit * along[:, None]) / distance[:, None], atol=1e-6)
 
 
-def test_navigation_term_matches_a_monte_carlo_of_receiver_errors(rng):
+@pytest.mark.parametrize("model", [PHASOR, PhasorModel(PHASOR.args[1])], ids=["differenced", "linearized"])
+def test_navigation_term_matches_a_monte_carlo_of_receiver_errors(rng, model):
     """Under multipath the apparent RD and RRD move with the receiver far more than the direct path's;
     H_r Sigma_r H_r^T must match the spread of the model over sampled navigation errors (small errors:
-    3 mm, 1.2 mm/s, where first order holds)."""
+    3 mm, 1.2 mm/s, where first order holds), with H_r by differences of the model or from its own
+    linearization (a geometric world's tracker's)."""
     source, velocity = np.array([-6.8, 11.5, -21.5]), np.array([0.3, 0.02, -0.15])
     mobile, mobile_velocity = np.array([15.0, 0, -7.0]), np.array([0.0, 1.0, 0.0])
     position_sd, velocity_sd = 0.003, 0.0012
     expected = receiver_noise(
-        receiver_jacobian(PHASOR, source, velocity, mobile, mobile_velocity, FIXED), position_sd, velocity_sd
+        receiver_jacobian(model, source, velocity, mobile, mobile_velocity, FIXED), position_sd, velocity_sd
     )
     samples = 20000
     z = PHASOR(

@@ -11,6 +11,7 @@ from aasl_gym.filters import make_motion_model
 from aasl_gym.initializers import Burst, subsample
 from aasl_gym.measurement_models import (
     FrameAveragedPhasor,
+    PhasorModel,
     Propagation,
     direct_measurement,
     frame_offsets,
@@ -125,13 +126,14 @@ def test_the_covariance_matches_the_spread_of_fits_to_noisy_windows():
 
 
 FRAME = FrameAveragedPhasor(Propagation(60.0, -0.9, 0.3, 2 * np.pi / 1.5), frame_offsets(0.2, 3))
+PHASOR = PhasorModel(FRAME.propagation)  # a geometric world's
 
 
 @pytest.mark.parametrize("motion_model", ["cv", "ctrv", "ca"])
-@pytest.mark.parametrize("measurement", [direct_measurement, FRAME], ids=["direct", "frame"])
+@pytest.mark.parametrize("measurement", [direct_measurement, FRAME, PHASOR], ids=["direct", "frame", "phasor"])
 def test_the_chained_jacobian_is_the_difference_jacobian(motion_model, measurement, monkeypatch):
     """The window's Jacobian chained from a model's closed form (what the fits use for the direct path
-    and the frame model) against central differences of the whole prediction, on starts off the truth,
+    and the phasor models) against central differences of the whole prediction, on starts off the truth,
     with each start's own R_eff whitener (navigation sd 5 cm, 2 cm/s)."""
     burst, model = window(motion_model, TRUTHS[motion_model])
     burst = Burst(
