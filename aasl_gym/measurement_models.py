@@ -3,12 +3,13 @@ takes it to be.
 
 ``z = [RD, RRD]`` in metres and m/s (SPEC section 2). :func:`direct_measurement` is the direct path;
 :func:`multipath_measurement` adds the surface and bed images under the first-order ``linear`` or the
-exact narrowband ``phasor`` model. The receiver Jacobians and :func:`receiver_noise` turn the robot's
-navigation errors into measurement noise (R_eff); :func:`multipath_spread` is the phasor ripple a
-filter that cannot yet resolve it treats as noise. The noise side: :func:`navigation_covariance`,
-the SNR model (:func:`model_snr`), the sd the filter is told at a frame's SNRs
-(:func:`signal_noise_sd`) and the R a planner expects ahead of a frame
-(:func:`expected_noise_covariance`). The sensors that produce z are in :mod:`aasl_gym.sensors`.
+exact narrowband ``phasor`` model; a tracker runs the latter as :class:`PhasorModel` (a geometric world's) or
+:class:`FrameAveragedPhasor` (averaged over a frame, as a tone front end measures), each with its Jacobians. The
+receiver Jacobians and :func:`receiver_noise` turn the robot's navigation errors into measurement noise (R_eff);
+:func:`multipath_spread` is the phasor ripple a filter that cannot yet resolve it treats as noise. The noise side:
+:func:`navigation_covariance`, the SNR model (:func:`model_snr`), the sd the filter is told at a frame's SNRs
+(:func:`signal_noise_sd`) and the R a planner expects ahead of a frame (:func:`expected_noise_covariance`). The
+sensors that produce z are in :mod:`aasl_gym.sensors`.
 """
 
 from __future__ import annotations
