@@ -359,11 +359,11 @@ def test_the_schedule_is_validated_with_the_key_named(tmp_path):
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_rl_zoo3_hyperparameters_are_those_of_training_yaml(algo):
-    """The shipped rl-zoo3 files hold configs/training.yaml's values for both ids (one place to tune)."""
+    """The shipped rl-zoo3 files hold configs/training.yaml's values for every id they name (one place to tune)."""
     training = yaml.safe_load(TRAINING.read_text())
     schedule, expected = training["schedule"], dict(training[algo])
     zoo = yaml.safe_load((ZOO / f"{algo}.yml").read_text())
-    assert set(zoo) == {"AASL-v0", "AASL-Greedy-v0"}
+    assert set(zoo) == {"AASL-v0", "AASL-Greedy-v0", "AASL-Facility-v0"}
     for env_id, params in zoo.items():
         params = dict(params)
         assert params.pop("n_timesteps") == schedule["timesteps"] and params.pop("n_envs") == schedule["n_envs"], env_id
