@@ -175,7 +175,7 @@ def write_outputs(
         plots = write_plots(args.out, rows, summary) + write_trajectory_plots(args.out, trajectories, effective)
     write_results(args.out / "results.json", command, effective, rows, summary, comparisons)
     models = filter_motion_models(jobs)
-    write_report(args.out / "report.md", command, effective, models, summary, comparisons, plots)
+    write_report(args.out / "report.md", command, effective, models, summary, comparisons, plots, rows)
     return summary, plots
 
 

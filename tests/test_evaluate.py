@@ -42,6 +42,7 @@ def test_tiny_evaluation_writes_report_results_and_plots(tmp_path):
     opening = (out / "report.md").read_text().splitlines()[2]
     assert opening.startswith("In short: Static sources:") and "of 1 episode " in opening and "+-98 points" in opening
     assert "filter motion model `cv` for every source motion;" in (out / "report.md").read_text()  # static's own
+    assert "## The facility" not in (out / "report.md").read_text()  # one pod: no detection or hand-over
     results = json.loads((out / "results.json").read_text())
     assert set(results) >= {"command", "config", "episodes", "summary"}
     # Where it ran: a seed's episode is the same to the last bit only on one machine and build.

@@ -147,6 +147,13 @@ def test_a_facility_trains_on_its_own_env_and_is_evaluated_there(tiny, tmp_path,
     rows = json.loads((report / "results.json").read_text())["episodes"]
     assert sorted(row["policy"] for row in rows) == sorted(["facility", model])
     assert all({"pod", "source_pod", "detection_time"} <= set(row) for row in rows)
+    # The report's facility section: one line per policy and motion, the detection counted from the rows.
+    section = (report / "report.md").read_text().split("## The facility: detection and hand-over")[1].splitlines()
+    lines = {line.split(" | ")[0].lstrip("| "): line for line in section if line.startswith(("| facility", "| ppo:"))}
+    assert sorted(lines) == sorted(["facility", model])
+    patrol = [row for row in rows if row["policy"] == "facility"]
+    heard = sum(row["detection_time"] is not None for row in patrol) / len(patrol)
+    assert lines["facility"].split(" | ")[2:4] == [str(len(patrol)), f"{heard:.0%}"]
 
 
 def test_missing_statistics_file_is_fine_and_a_corrupt_one_is_named(tiny, tmp_path):

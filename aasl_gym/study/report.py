@@ -4,6 +4,7 @@ comparisons), ``results.json`` (the stable interface other tools read) and the c
 from __future__ import annotations
 
 import math
+import statistics
 from pathlib import Path
 
 from aasl_gym.config import EnvConfig, to_dict
@@ -125,6 +126,39 @@ def _comparison_section(field: str, rows: list[Row]) -> list[str]:
     return lines
 
 
+def facility_section(rows: list[Row]) -> list[str]:
+    """A facility's detection and hand-over per policy and motion, from the rows that carry them (``detection_time``,
+    ``pod``, ``source_pod``: AASL-Facility-v0's episodes); nothing for a single pod. The metrics count from the
+    tracker's first estimate, so from after detection: the time to 1 m is given after it too."""
+    rows = [row for row in rows if "detection_time" in row]
+    if not rows:
+        return []
+    lines = [
+        "",
+        "## The facility: detection and hand-over",
+        "",
+        "| policy | motion | n | heard | paired with the attacked pod | detection (s): median "
+        "| time to 1 m after detection (s): median |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for policy, motion in dict.fromkeys((row["policy"], row["motion"]) for row in rows):
+        cell = [row for row in rows if (row["policy"], row["motion"]) == (policy, motion)]
+        heard = [row for row in cell if row["detection_time"] is not None]
+        paired = sum(row["pod"] == row["source_pod"] for row in heard) / len(heard) if heard else None
+        detection = [row["detection_time"] for row in heard]
+        converged = [row for row in heard if row["convergence_time"] is not None]
+        delays = [row["convergence_time"] - row["detection_time"] for row in converged]
+        lines.append(
+            f"| {policy} | {motion} | {len(cell)} | {len(heard) / len(cell):.0%} "
+            f"| {'-' if paired is None else f'{paired:.0%}'} | {_fmt(_median(detection))} | {_fmt(_median(delays))} |"
+        )
+    return lines
+
+
+def _median(values: list[float]) -> float | None:
+    return statistics.median(values) if values else None
+
+
 def write_report(
     path: Path,
     command: str,
@@ -133,9 +167,11 @@ def write_report(
     summary: list[Row],
     comparisons: dict[str, list[Row]],
     plots: list[str],
+    rows: list[Row] | None = None,
 ) -> None:
     """``report.md``, atomically: ``config`` is the one the episodes ran with, ``filter_models`` the filter's
-    motion model for each source motion, ``plots`` the figures' file names beside it."""
+    motion model for each source motion, ``plots`` the figures' file names beside it; the episodes' ``rows`` add
+    a facility's detection and hand-over (:func:`facility_section`)."""
     lines = [
         "# AASL-Gym evaluation",
         "",
@@ -151,9 +187,10 @@ def write_report(
         *SUMMARY_HEADER,
         *(_summary_line(s) for s in summary),
     ]
-    for field, rows in comparisons.items():
-        if rows:
-            lines += _comparison_section(field, rows)
+    for field, compared in comparisons.items():
+        if compared:
+            lines += _comparison_section(field, compared)
+    lines += facility_section(rows or [])
     if plots:
         lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
     atomic_write_text(path, "\n".join(lines) + "\n")
