@@ -24,6 +24,7 @@ from aasl_gym.study.paper import (
     model_error_samples,
 )
 from aasl_gym.study.plots import pop_trajectories, save_png, write_trajectory_plots
+from aasl_gym.study.report import handover
 
 DPI = 110
 QUANTILES = (50, 90, 99)  # %, of the models' absolute errors
@@ -253,14 +254,10 @@ def _facility_section(rows: list[Row]) -> list[str]:
     cells = dict.fromkeys((row["motion"], row["variant"]) for row in rows)
     for motion, variant in cells:
         trials = [row for row in rows if row["motion"] == motion and row["variant"] == variant]
-        heard = [row for row in trials if row["detection_time"] is not None]
-        same_pod = np.mean([row["pod"] == row["source_pod"] for row in heard]) if heard else float("nan")
+        heard, same_pod, delays = handover(trials)
         detection = _median_cell([row["detection_time"] for row in heard], 1)
         spread, median = _rmse_cells([row["rmse"] for row in trials if row["rmse"] is not None])
         success = np.mean([row["success"]["1.0"] for row in trials])
-        delays = [
-            row["convergence_time"] - row["detection_time"] for row in heard if row["convergence_time"] is not None
-        ]
         lines.append(
             f"| {motion} | {variant} | {len(trials)} | {len(heard) / len(trials):.0%} | {same_pod:.0%} | {detection} "
             f"| {spread} | {median} | {success:.0%} | {_median_cell(delays, 1)} "

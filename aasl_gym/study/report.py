@@ -128,8 +128,8 @@ def _comparison_section(field: str, rows: list[Row]) -> list[str]:
 
 def facility_section(rows: list[Row]) -> list[str]:
     """A facility's detection and hand-over per policy and motion, from the rows that carry them (``detection_time``,
-    ``pod``, ``source_pod``: AASL-Facility-v0's episodes); nothing for a single pod. The metrics count from the
-    tracker's first estimate, so from after detection: the time to 1 m is given after it too."""
+    ``pod``, ``source_pod``: AASL-Facility-v0's episodes); nothing for a single pod. The robot cannot track before a
+    pod hears the attack, so the time to 1 m is given after detection too."""
     rows = [row for row in rows if "detection_time" in row]
     if not rows:
         return []
@@ -143,16 +143,23 @@ def facility_section(rows: list[Row]) -> list[str]:
     ]
     for policy, motion in dict.fromkeys((row["policy"], row["motion"]) for row in rows):
         cell = [row for row in rows if (row["policy"], row["motion"]) == (policy, motion)]
-        heard = [row for row in cell if row["detection_time"] is not None]
-        paired = sum(row["pod"] == row["source_pod"] for row in heard) / len(heard) if heard else None
-        detection = [row["detection_time"] for row in heard]
-        converged = [row for row in heard if row["convergence_time"] is not None]
-        delays = [row["convergence_time"] - row["detection_time"] for row in converged]
+        heard, paired, delays = handover(cell)
+        detection = _fmt(_median([row["detection_time"] for row in heard]))
         lines.append(
             f"| {policy} | {motion} | {len(cell)} | {len(heard) / len(cell):.0%} "
-            f"| {'-' if paired is None else f'{paired:.0%}'} | {_fmt(_median(detection))} | {_fmt(_median(delays))} |"
+            f"| {'-' if math.isnan(paired) else f'{paired:.0%}'} | {detection} | {_fmt(_median(delays))} |"
         )
     return lines
+
+
+def handover(rows: list[Row]) -> tuple[list[Row], float, list[float]]:
+    """Of a facility's episodes (rows with ``detection_time``, ``pod``, ``source_pod``): those a pod heard, the share
+    of them the tracker paired with the attacked pod (NaN if none was heard) and, for those that converged, the time
+    (s) from detection to 1 m."""
+    heard = [row for row in rows if row["detection_time"] is not None]
+    paired = sum(row["pod"] == row["source_pod"] for row in heard) / len(heard) if heard else math.nan
+    converged = [row for row in heard if row["convergence_time"] is not None]
+    return heard, paired, [row["convergence_time"] - row["detection_time"] for row in converged]
 
 
 def _median(values: list[float]) -> float | None:
