@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     run = schedule.replace(env=args.env, timesteps=args.timesteps, n_envs=args.n_envs)
     try:
         option = "--env" if args.env else "--hyperparameters: schedule.env"
-        check_env_fits(run.env, config, option, remedy=" (--env AASL-Facility-v0)")
+        check_env_fits(run.env, config, option, remedy=f" (--env {FACILITY_ID})")
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

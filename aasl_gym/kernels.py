@@ -462,8 +462,7 @@ def _frame_block(rows: np.ndarray, fixed: np.ndarray, offsets: np.ndarray, propa
     # The source and the mobile at every offset, sample-major: (6, S N).
     points = (rows[0:6, None, :] + offsets[:, None] * rows[6:12, None, :]).reshape(6, -1)
     p = propagation
-    paths = _paths(points, fixed, p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber)
-    paths = paths.reshape(11, len(offsets), -1)
+    paths = _paths(points, fixed, *p.channel).reshape(11, len(offsets), -1)
     out = np.empty((26, rows.shape[1]))
     _frame_combine(_apparent(paths, p.wavenumber), paths, offsets, 2 * np.pi / p.wavenumber, out)
     return out
@@ -504,7 +503,7 @@ def frame_and_direct(
     if count > CHUNK:
         raise ValueError(f"at most {CHUNK} states a call, got {count}")
     offsets, p = np.asarray(offsets, dtype=float), propagation
-    channel = np.array([p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber], dtype=float)
+    channel = np.array(p.channel, dtype=float)
     paths, direct = np.empty((11, len(offsets), count)), np.empty((26, count))
     _frame_and_direct_paths(
         position, np.ascontiguousarray(velocity, dtype=float).reshape(-1, 3), np.array(mobile, dtype=float).reshape(3),
@@ -1087,9 +1086,7 @@ def _constants(receivers, fixed, offsets, propagation, measured, noise, navigati
     """What :func:`_block_terms` reads besides the states, as its arrays and numbers; ``propagation`` None for the
     direct path (no frame: ``offsets`` are not read)."""
     direct = propagation is None
-    p = propagation
-    channel = np.zeros(4) if direct else np.array([p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber],
-                                                  dtype=float)  # fmt: skip
+    channel = np.zeros(4) if direct else np.array(propagation.channel, dtype=float)
     return (
         np.ascontiguousarray(np.concatenate(receivers, axis=1).T, dtype=float),  # (6, K)
         _fixed_point(fixed),
@@ -1100,7 +1097,7 @@ def _constants(receivers, fixed, offsets, propagation, measured, noise, navigati
         np.square(np.asarray(navigation_sd, dtype=float)),
         0.0 if period is None else float(period),
         bool(robust),
-        0.0 if direct else 2 * np.pi / p.wavenumber,  # the frame's unwrapping period
+        0.0 if direct else 2 * np.pi / propagation.wavenumber,  # the frame's unwrapping period
         direct,
     )
 

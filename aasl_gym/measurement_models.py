@@ -33,6 +33,12 @@ class Propagation:
     bed_reflection: float
     wavenumber: float  # rad/m, 2 pi f0 / c
 
+    @property
+    def channel(self) -> tuple[float, float, float, float]:
+        """(water_depth, surface_reflection, bed_reflection, wavenumber): the phasor model's channel arguments, in the
+        order :mod:`aasl_gym.geometry`'s and :mod:`aasl_gym.kernels`' phasor functions take them."""
+        return self.water_depth, self.surface_reflection, self.bed_reflection, self.wavenumber
+
     @classmethod
     def from_config(cls, world: WorldConfig, frequency: float) -> Propagation:
         return cls(
@@ -69,8 +75,7 @@ def multipath_measurement(
             position, velocity, mobile, mobile_velocity, fixed, p.water_depth, p.surface_reflection, p.bed_reflection
         )
     elif model == "phasor":  # compiled: geometry.phasor_multipath to rounding, several times faster
-        channel = (p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber)
-        return kernels.phasor_measurement(position, velocity, mobile, mobile_velocity, fixed, *channel)
+        return kernels.phasor_measurement(position, velocity, mobile, mobile_velocity, fixed, *p.channel)
     else:
         raise ValueError(f"unknown multipath model {model!r}; allowed: ['none', 'linear', 'phasor']")
     return np.stack([rd, rrd], axis=-1)
@@ -125,10 +130,7 @@ def _frame_mean_and_slope(rd: np.ndarray, offsets: np.ndarray, wavenumber: float
 
 def phasor_range_difference(propagation: Propagation, position, mobile, fixed) -> np.ndarray:
     """The phasor model's apparent RD (m) alone (:func:`~aasl_gym.geometry.phasor_range_difference`)."""
-    p = propagation
-    return geometry.phasor_range_difference(
-        position, mobile, fixed, p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber
-    )
+    return geometry.phasor_range_difference(position, mobile, fixed, *propagation.channel)
 
 
 def frame_offsets(duration: float, samples: int) -> np.ndarray:
@@ -152,9 +154,7 @@ class PhasorModel:
         self, position, velocity, mobile, mobile_velocity, fixed
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """[RD, RRD] (..., 2), d[RD, RRD] / d[p, v] and d[RD, RRD] / d[p_m, v_m] (..., 2, 6 each)."""
-        p = self.propagation
-        channel = (p.water_depth, p.surface_reflection, p.bed_reflection, p.wavenumber)
-        return kernels.phasor_linearized(position, velocity, mobile, mobile_velocity, fixed, *channel)
+        return kernels.phasor_linearized(position, velocity, mobile, mobile_velocity, fixed, *self.propagation.channel)
 
     def state_jacobian(self, position, velocity, mobile, mobile_velocity, fixed) -> np.ndarray:
         """d[RD, RRD] / d[p, v], shape (..., 2, 6)."""
@@ -309,8 +309,7 @@ def multipath_spread(
     )
     # NumPy's form of the phasor model (the compiled one's reference): the default world's committed rows were made
     # with this estimate, which the compiled form would move in its last bits.
-    channel = (propagation.water_depth, propagation.surface_reflection, propagation.bed_reflection)
-    phasor = np.stack(geometry.phasor_multipath(*arguments, *channel, propagation.wavenumber), axis=-1)
+    phasor = np.stack(geometry.phasor_multipath(*arguments, *propagation.channel), axis=-1)
     correction = phasor - direct_measurement(*arguments)
     period = 2 * np.pi / propagation.wavenumber
     phase = np.angle(np.mean(np.exp(2j * np.pi * correction[:, 0] / period)))

@@ -99,11 +99,9 @@ def _episode_env(job: Job) -> tuple[AASLEnv, Any]:
         "measurement": job.measurement,
         "filter_model": job.filter_model,
     }
-    if job.policy == FACILITY_PATROL:
-        return FacilityEnv(job.config, scenario=None, **overrides), ZeroPolicy()
     policy = trained_model(job.policy) if ":" in job.policy else None
-    if policy is not None and policy.env_id == FACILITY_ID:
-        return FacilityEnv(job.config, scenario=None, **overrides), policy
+    if job.policy == FACILITY_PATROL or (policy is not None and policy.env_id == FACILITY_ID):
+        return FacilityEnv(job.config, scenario=None, **overrides), ZeroPolicy() if policy is None else policy
     patrol = ENV_IDS[policy.env_id] if policy is not None else None
     env = AASLEnv(job.config, patrol=patrol, **overrides)
     if policy is None:
