@@ -314,8 +314,24 @@ def estimate(
     noise_level_db: float | None = None,
 ) -> FrameEstimate:
     """[RD, RRD] of one frame from the two channels' complex envelopes (see the module docstring and
-    :func:`delay_track`)."""
-    return tdoa_fdoa(delay_track(envelope, waveform, max_delay, windows, noise_level_db), sound_speed)
+    :func:`delay_track`). A tone's (lag 0) in one compiled pass, :func:`aasl_gym.kernels.tone_estimate`."""
+    starts = _tone_starts(len(envelope.times), windows) if waveform.kind == "tone" else np.empty(0, dtype=int)
+    if not len(starts):
+        return tdoa_fdoa(delay_track(envelope, waveform, max_delay, windows, noise_level_db), sound_speed)
+    delay, slope, coherence = kernels.tone_estimate(
+        envelope.mobile, envelope.fixed, envelope.times, starts, envelope.carrier, 1.0 / waveform.frequency
+    )
+    return FrameEstimate(sound_speed * delay, sound_speed * slope, coherence)
+
+
+@functools.lru_cache(maxsize=16)
+def _tone_starts(count: int, windows: int) -> np.ndarray:
+    """The first sample of each of :func:`_window_edges`' windows of two samples or more, as :func:`_window_delays`
+    keeps them at lag 0 (read-only)."""
+    edges = _window_edges(count, windows)
+    starts = edges[:-1][edges[1:] > edges[:-1] + 1]
+    starts.setflags(write=False)
+    return starts
 
 
 def tone_measurement_sd(

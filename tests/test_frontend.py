@@ -445,3 +445,32 @@ def test_further_pairs_share_the_robots_recording(rng):
     for errors in (rd_errors, rrd_errors):
         correlation = np.corrcoef(np.array(errors).T)
         assert np.all(np.abs(correlation[np.triu_indices(3, 1)] - 0.5) < 0.12)
+
+
+def test_compiled_tone_estimate_is_the_numpy_stages(rng):
+    """A tone frame's estimate (:func:`aasl_gym.kernels.tone_estimate`, one compiled pass) against the NumPy stages
+    it replaces, :func:`frontend.delay_track` and :func:`frontend.tdoa_fdoa` at lag 0 (a second implementation): noisy
+    frames with reflections, robot and source moving, the delay track slipping across whole periods in some, to
+    rounding. Fewer windows than samples allow (a window under two samples dropped) take the NumPy stages."""
+    for noise_level_db in (None, 80.0, 100.0):
+        for _ in range(4):
+            source, source_velocity, mobile, mobile_velocity = scene(rng)
+            waveform = synthesis.Waveform.random("tone", rng)
+            paths = synthesis.path_sources(source, 3 * source_velocity, True, 60.0, -0.9, 0.3)
+            channel = synthesis.synthesize(
+                waveform, 3.0, 0.24, ENVELOPE_RATE, True, paths, mobile, 3 * mobile_velocity, FIXED, C, 140.0,
+                noise_level_db, rng,
+            )  # fmt: skip
+            envelope = frontend.envelopes(channel, waveform, ENVELOPE_RATE, 0.02)
+            compiled = frontend.estimate(envelope, waveform, C, MAX_DELAY, noise_level_db=noise_level_db)
+            track = frontend.delay_track(envelope, waveform, MAX_DELAY, noise_level_db=noise_level_db)
+            stages = frontend.tdoa_fdoa(track, C)
+            assert compiled.range_difference == pytest.approx(stages.range_difference, rel=1e-12, abs=1e-12)
+            assert compiled.range_rate_difference == pytest.approx(stages.range_rate_difference, rel=1e-9, abs=1e-12)
+            assert compiled.coherence == pytest.approx(stages.coherence, rel=1e-12)
+    first = slice(0, 3)
+    short = frontend.Channel(
+        envelope.times[first], envelope.mobile[first], envelope.fixed[first], envelope.rate, envelope.carrier
+    )
+    with np.errstate(invalid="ignore", divide="ignore"):  # no window left: NaN, as the NumPy stages give it
+        assert np.isnan(frontend.estimate(short, waveform, C, MAX_DELAY, windows=10).range_difference)
