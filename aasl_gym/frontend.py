@@ -14,7 +14,9 @@ windows; in each, the phase of the normalized cross-correlation at that lag refi
 fraction of the carrier period. The delay track's mean is the TDOA (RD = c TDOA) and its time slope
 - the slope of the cross-channel phase - the FDOA (RRD = c d(TDOA)/dt). For a tone only the phase
 carries the delay, so it is known modulo one period; the caller's :class:`Unwrapper` resolves that
-against the previous frame. A sweep's or hop's delay is where two Doppler-scaled copies line up,
+against the previous frame. A tone's windows, delays, mean and slope run in one compiled pass
+(:func:`aasl_gym.kernels.tone_estimate`; :func:`delay_track` and :func:`tdoa_fdoa` are its NumPy stages, which the
+sweep and the hop take). A sweep's or hop's delay is where two Doppler-scaled copies line up,
 which differs from RD / c by RD * rdot_f / c (about 1e-3 of RD); a tone's phase difference *is* the
 range difference.
 

@@ -51,9 +51,10 @@ fits from one start on (session 32: a lone start runs unpadded), and in one pass
 (:func:`lcmap_grid`: a thousand candidates or more along twenty samples, each one's velocity solve and score in
 cache; 26 -> 9 ms an LC-MAP run; since session 41 in blocks of candidates, each stage's loop over a block as in the
 window fit, 45 % less again). The unscented filters' sigma points, moments and update (:func:`sigma_points`,
-:func:`sigma_moments`, :func:`unscented_update`), a channel's clipping count (:func:`peak_counts`), the reward's
-Fisher information step (:func:`information_step`) and the greedy planner's horizon (:func:`horizon_information`)
-are compiled too: each was a dozen NumPy calls on arrays of a few dozen numbers, every step. So is a filter bank's
+:func:`sigma_moments`, :func:`unscented_update`), a channel's clipping count (:func:`peak_counts`), a tone frame's
+estimate (:func:`tone_estimate`), the reward's Fisher information step (:func:`information_step`) and the greedy
+planner's horizon (:func:`horizon_information`) are compiled too: each was a dozen NumPy calls on arrays of a few
+dozen numbers, every step. So is a filter bank's
 whole step, once for all its filters: a CV bank's prediction (:func:`constant_velocity_prediction`), the measurement
 model under the phasor model (:func:`frame_and_direct`, :func:`ripple_measurements`: the frame model and the direct
 path at every sigma point in one pass, the ripple's correction and R_eff's navigation term in another, NumPy's

@@ -3,8 +3,9 @@ hardware-rate path (real, 200 kHz) and the fast path (complex baseband), free fi
 
     python benchmarks/bench_frontend.py [--repeats 7] [--episodes 1]
 
-Prints the median over repeats in ms, and the hardware path's filtering cost against the FFTs it
-cannot avoid (one real FFT of the frame per channel), so the ratio holds however fast the machine is;
+Prints the median over repeats in ms (a tone's correlation and TDOA / FDOA stages are one compiled pass, timed as
+one), and the hardware path's filtering cost against the FFTs it cannot avoid (one real FFT of the frame per
+channel), so the ratio holds however fast the machine is;
 then env steps per second in signal mode, over whole episodes and for the typical step (the median:
 front end + UKF bank; LC-MAP's start and re-seeds, a dozen steps an episode, are the rest). Goals
 (issue 3): the full env step (front end + UKF) >= 1,000 steps/s on the fast path, the hardware path
@@ -77,16 +78,15 @@ def main() -> None:
 
             channel = synthesize()
             envelope = frontend.envelopes(channel, waveform, ENVELOPE_RATE, GUARD)
-            track = frontend.delay_track(envelope, waveform, 0.03, noise_level_db=80.0)
             costs = {
                 "synthesis": median_ms(synthesize, args.repeats),
                 "filtering": median_ms(
                     lambda: frontend.envelopes(channel, waveform, ENVELOPE_RATE, GUARD), args.repeats
                 ),
-                "correlation": median_ms(
-                    lambda: frontend.delay_track(envelope, waveform, 0.03, noise_level_db=80.0), args.repeats
+                # A tone's correlation and TDOA / FDOA stages run as one compiled pass (kernels.tone_estimate).
+                "correlation + TDOA / FDOA": median_ms(
+                    lambda: frontend.estimate(envelope, waveform, 1500.0, 0.03, noise_level_db=80.0), args.repeats
                 ),
-                "TDOA + FDOA": median_ms(lambda: frontend.tdoa_fdoa(track, 1500.0), args.repeats),
             }
             line = ", ".join(f"{name} {cost:.2f} ms" for name, cost in costs.items())
             print(f"reflections {'on ' if reflections else 'off'} {label}: {line}, total {sum(costs.values()):.2f} ms")
