@@ -317,8 +317,8 @@ def estimate(
 ) -> FrameEstimate:
     """[RD, RRD] of one frame from the two channels' complex envelopes (see the module docstring and
     :func:`delay_track`). A tone's (lag 0) in one compiled pass, :func:`aasl_gym.kernels.tone_estimate`."""
-    starts = _tone_starts(len(envelope.times), windows) if waveform.kind == "tone" else np.empty(0, dtype=int)
-    if not len(starts):
+    starts = _tone_starts(len(envelope.times), windows) if waveform.kind == "tone" else None
+    if starts is None or not len(starts):  # a sweep or a hop, or a frame too short for a window
         return tdoa_fdoa(delay_track(envelope, waveform, max_delay, windows, noise_level_db), sound_speed)
     delay, slope, coherence = kernels.tone_estimate(
         envelope.mobile, envelope.fixed, envelope.times, starts, envelope.carrier, 1.0 / waveform.frequency
