@@ -232,13 +232,13 @@ def _window_delays(
     low, high = max(0, lag), min(count, count + lag)  # mobile samples whose t - lag lies inside the frame
     mobile, aligned = envelope.mobile[low:high], envelope.fixed[low - lag : high - lag]
     bounds = np.minimum(np.maximum(edges, low), high) - low  # np.clip's dispatch costs more than the frame's sums
-    starts = bounds[:-1][bounds[1:] > bounds[:-1] + 1]  # windows of two samples or more
+    starts = _window_starts(bounds)
     lengths = np.empty_like(starts)  # np.diff(starts, append=high - low), without its dispatch
     lengths[:-1] = starts[1:] - starts[:-1]
     lengths[-1:] = high - low - starts[-1:]
     correlation = np.add.reduceat(np.conj(aligned) * mobile, starts)
     energy = np.sqrt(np.add.reduceat(np.abs(mobile) ** 2, starts) * np.add.reduceat(np.abs(aligned) ** 2, starts))
-    mean_frequency = envelope.carrier
+    mean_frequency: float | np.ndarray = envelope.carrier  # a sweep or hop measures one per window
     if not tone:
         products = np.conj(aligned[:-1]) * aligned[1:]
         products[starts[1:] - 1] = 0.0  # increments stay within their window
@@ -250,6 +250,12 @@ def _window_delays(
     delays = lag / rate - analytic_phase / (2 * np.pi * mean_frequency)
     centres = np.add.reduceat(envelope.times[low:high], starts) / lengths
     return delays, np.abs(correlation) / energy, centres
+
+
+def _window_starts(bounds: np.ndarray) -> np.ndarray:
+    """The first sample of each window [bounds[i], bounds[i+1]) of two samples or more: the windows a delay is
+    measured in (a shorter one's samples join the window before it)."""
+    return bounds[:-1][bounds[1:] > bounds[:-1] + 1]
 
 
 @functools.lru_cache(maxsize=16)
@@ -330,8 +336,7 @@ def estimate(
 def _tone_starts(count: int, windows: int) -> np.ndarray:
     """The first sample of each of :func:`_window_edges`' windows of two samples or more, as :func:`_window_delays`
     keeps them at lag 0 (read-only)."""
-    edges = _window_edges(count, windows)
-    starts = edges[:-1][edges[1:] > edges[:-1] + 1]
+    starts = _window_starts(_window_edges(count, windows))
     starts.setflags(write=False)
     return starts
 
