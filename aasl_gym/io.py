@@ -14,14 +14,23 @@ from typing import Any
 import yaml
 
 
+def _new_file_mode() -> int:
+    """The mode ``open()`` gives a new file: 0o666 less the process's umask (read back by setting it twice)."""
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
-    """Call ``write(tmp_path)`` and rename the result onto ``path``; a crash never leaves half a file."""
+    """Call ``write(tmp_path)`` and rename the result onto ``path``; a crash never leaves half a file. The file gets
+    the mode a plain write would give it (``mkstemp``'s own, 0o600, would hide reports from the rest of a group)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, _new_file_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -1,6 +1,8 @@
 """Atomic writes: a file is replaced whole or not at all."""
 
 import json
+import os
+import stat
 from pathlib import Path
 
 import pytest
@@ -28,6 +30,19 @@ def test_a_failed_write_keeps_the_old_file_and_cleans_up(tmp_path):
         atomic_write(target, crash)
     assert target.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["model.zip"]
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_a_written_file_has_the_mode_a_plain_write_gives(tmp_path, umask):
+    """Not the temporary file's private 0o600: a report shared with a group reads as any file the user writes."""
+    previous = os.umask(umask)
+    try:
+        (tmp_path / "plain.md").write_text("x")
+        atomic_write_text(tmp_path / "atomic.md", "x")
+    finally:
+        os.umask(previous)
+    mode = stat.S_IMODE((tmp_path / "plain.md").stat().st_mode)
+    assert stat.S_IMODE((tmp_path / "atomic.md").stat().st_mode) == mode == 0o666 & ~umask
 
 
 def test_json_is_strict(tmp_path):
