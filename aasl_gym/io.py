@@ -23,7 +23,8 @@ def _new_file_mode() -> int:
 
 def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
     """Call ``write(tmp_path)`` and rename the result onto ``path``; a crash never leaves half a file. The file gets
-    the mode a plain write would give it (``mkstemp``'s own, 0o600, would hide reports from the rest of a group)."""
+    the mode a new file gets (0o666 less the umask; ``mkstemp``'s own, 0o600, would hide reports from the rest of a
+    group), also where it replaces one: unlike a write in place, the replaced file's own mode is not kept."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
