@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import os
 import re
-import tempfile
+import secrets
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -14,24 +14,28 @@ from typing import Any
 import yaml
 
 
-def _new_file_mode() -> int:
-    """The mode ``open()`` gives a new file: 0o666 less the process's umask (read back by setting it twice)."""
-    umask = os.umask(0o022)
-    os.umask(umask)
-    return 0o666 & ~umask
+def _new_temporary(folder: Path, name: str, suffix: str) -> str:
+    """An empty new file in ``folder`` with a random name of ``name`` and ``suffix``, created as ``open()`` creates
+    one (mode 0o666, which the kernel narrows by the umask), unlike ``mkstemp``'s private 0o600."""
+    for _ in range(100):
+        tmp = folder / f".{name}.{secrets.token_hex(6)}{suffix}"
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            continue
+        return str(tmp)
+    raise FileExistsError(f"no free temporary name for {name!r} in {folder}")
 
 
 def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
     """Call ``write(tmp_path)`` and rename the result onto ``path``; a crash never leaves half a file. The file gets
-    the mode a new file gets (0o666 less the umask; ``mkstemp``'s own, 0o600, would hide reports from the rest of a
-    group), also where it replaces one: unlike a write in place, the replaced file's own mode is not kept."""
+    the mode a new file gets (0o666 less the umask; a private temporary file's 0o600 would hide reports from the
+    rest of a group), also where it replaces one: unlike a write in place, the replaced file's own mode is not kept."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    tmp = _new_temporary(path.parent, path.name, path.suffix)
     try:
         write(tmp)
-        os.chmod(tmp, _new_file_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

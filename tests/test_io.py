@@ -45,6 +45,17 @@ def test_a_written_file_has_the_mode_a_plain_write_gives(tmp_path, umask):
     assert stat.S_IMODE((tmp_path / "atomic.md").stat().st_mode) == mode == 0o666 & ~umask
 
 
+def test_a_write_leaves_the_umask_alone(tmp_path, monkeypatch):
+    """The umask is the process's: setting it, even for a moment, would change what other threads create."""
+
+    def refuse(mask: int) -> int:
+        raise AssertionError(f"os.umask({mask:#o}) called")
+
+    monkeypatch.setattr(os, "umask", refuse)
+    atomic_write_text(tmp_path / "report.md", "x")
+    assert (tmp_path / "report.md").read_text() == "x"
+
+
 def test_json_is_strict(tmp_path):
     """NaN is not JSON: it is refused rather than written as a token other readers reject."""
     atomic_write_json(tmp_path / "ok.json", {"a": 1.5})
