@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import bench_instructions
 from crb_bound import as_few_chance, efficient_count_range
-from heldout_figure import bound_rows
+from heldout_figure import bound_rows, tracker_success
 from reproduce_rows import differences, paper_variants
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,7 +41,8 @@ def test_the_count_range_and_the_chance_of_as_few_match_a_monte_carlo():
 
 def test_the_heldout_figure_reads_the_bound_tables_at_one_metre(tmp_path):
     """A crb_bound.md with a 1 m table without and one with the tracker and oracle columns, then a 0.5 m table: the
-    figure takes the last 1 m table's efficient estimator (share and range) and the MAP's share where it has one."""
+    figure takes the last 1 m table's efficient estimator (share and range) and the tracker's and MAP's shares where
+    it has them; a set without a results.json takes the tracker's share from that table."""
     header = "| motion | episodes | bound < {t} m to the end | first time | efficient | its count, 90 % range |"
     tables = [
         header.format(t="1.0"), "|---|---|---|---|---|---|", "| cv | 100 | 96% | 23.5 | 95% | 92-98 |",
@@ -52,8 +53,9 @@ def test_the_heldout_figure_reads_the_bound_tables_at_one_metre(tmp_path):
     ]  # fmt: skip
     (tmp_path / "crb_bound.md").write_text("Some prose.\n\n" + "\n".join(tables) + "\n")
     rows = bound_rows(tmp_path)
-    assert rows["cv"] == {"efficient": 94.0, "low": 91.0, "high": 97.0, "map": 97.0}
+    assert rows["cv"] == {"efficient": 94.0, "low": 91.0, "high": 97.0, "tracker": 93.0, "map": 97.0}
     assert rows["static"] == {"efficient": 100.0, "low": 100.0, "high": 100.0}
+    assert tracker_success(tmp_path) == {"cv": 93.0}
 
 
 def test_the_reproduction_check_maps_a_paper_logs_variants_and_skips_timings():
