@@ -7,6 +7,7 @@ import json
 import os
 import re
 import secrets
+import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -14,28 +15,34 @@ from typing import Any
 import yaml
 
 
-def _new_temporary(folder: Path, name: str, suffix: str) -> str:
-    """An empty new file in ``folder`` with a random name of ``name`` and ``suffix``, created as ``open()`` creates
-    one (mode 0o666, which the kernel narrows by the umask), unlike ``mkstemp``'s private 0o600."""
+def _new_temporary(folder: Path, name: str, suffix: str) -> tuple[str, int]:
+    """An empty new file ``.{name}.{12 random hex digits}{suffix}`` in ``folder``, created as ``open()`` creates a
+    file (mode 0o666, which the kernel narrows by the umask; ``mkstemp``'s is a private 0o600), and that mode."""
     for _ in range(100):
         tmp = folder / f".{name}.{secrets.token_hex(6)}{suffix}"
         try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            descriptor = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:
             continue
-        return str(tmp)
+        try:
+            return str(tmp), stat.S_IMODE(os.fstat(descriptor).st_mode)
+        finally:
+            os.close(descriptor)
     raise FileExistsError(f"no free temporary name for {name!r} in {folder}")
 
 
 def atomic_write(path: str | Path, write: Callable[[str], object]) -> Path:
     """Call ``write(tmp_path)`` and rename the result onto ``path``; a crash never leaves half a file. The file gets
     the mode a new file gets (0o666 less the umask; a private temporary file's 0o600 would hide reports from the
-    rest of a group), also where it replaces one: unlike a write in place, the replaced file's own mode is not kept."""
+    rest of a group), also where it replaces one (unlike a write in place, the replaced file's own mode is not kept)
+    and where ``write`` put a file of another mode at ``tmp_path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _new_temporary(path.parent, path.name, path.suffix)
+    tmp, mode = _new_temporary(path.parent, path.name, path.suffix)
     try:
         write(tmp)
+        if stat.S_IMODE(os.stat(tmp).st_mode) != mode:
+            os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -46,8 +46,9 @@ def tracker_success(folder: Path) -> dict[str, float]:
 
 
 def bound_rows(folder: Path) -> dict[str, dict[str, float]]:
-    """Per motion, from every table of ``crb_bound.md`` at ``TARGET``: the efficient estimator's share and its count's
-    90 % range (%), and the tracker's and the exact MAP's shares (%) where the table has their columns."""
+    """Per motion, from the last table of ``crb_bound.md`` at ``TARGET`` with a row for it: the episodes, the efficient
+    estimator's share and its count's 90 % range (%), and the tracker's and the exact MAP's shares (%) where the table
+    has their columns."""
     rows: dict[str, dict[str, float]] = {}
     target = None
     for line in (folder / "crb_bound.md").read_text().splitlines():
@@ -59,7 +60,7 @@ def bound_rows(folder: Path) -> dict[str, dict[str, float]]:
         if target != TARGET or not cells or cells[0] not in MOTIONS:
             continue
         low, high = (float(x) for x in cells[5].split("-"))
-        row = rows.setdefault(cells[0], {})
+        row = rows[cells[0]] = {"episodes": float(cells[1])}
         row.update(efficient=float(cells[4].rstrip("%")), low=low, high=high)
         if len(cells) >= 7:
             row["tracker"] = float(cells[6].rstrip("%"))

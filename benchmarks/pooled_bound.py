@@ -1,7 +1,7 @@
 """Issue 12's point 1 over every held-out set at once: the tracker's successes at 1 m summed over the sets of one
 motion, beside an efficient estimator's count over the same episodes (its mean, 90 % range and the chance of as few).
 
-    python benchmarks/pooled_bound.py [--motion cv] [--workers 2]
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/pooled_bound.py [--motion cv] [--workers 2]
 
 One set alone moves by a few points by luck (``crb_bound.py``'s "chance of as few"); pooled, the episodes say whether
 the tracker falls short of what the data allow or only of the bar. The tracker's count comes from each set's committed
@@ -23,17 +23,24 @@ from aasl_gym.scenarios import command_line_config
 from crb_bound import as_few_chance, efficient_count_range, efficient_success, episode_covariance
 from heldout_figure import SETS, TARGET, bound_rows, tracker_success
 
-EPISODES = 100  # each set's
 CONFIG = "configs/initializer_study.yaml"
 
 
-def set_chances(first_seed: int, motion: str) -> list[float]:
-    """An efficient estimator's chance of ending within ``TARGET`` in each episode of the set from ``first_seed``."""
+def set_chances(first_seed: int, episodes: int, motion: str) -> list[float]:
+    """An efficient estimator's chance of ending within ``TARGET`` in each of the ``episodes`` from ``first_seed``."""
     base = command_line_config(None, CONFIG, CONFIG)
     env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol="helix")
     rng = np.random.default_rng(first_seed)
-    seeds = range(first_seed, first_seed + EPISODES)
+    seeds = range(first_seed, first_seed + episodes)
     return [efficient_success(episode_covariance(env, seed)[-1], TARGET, rng) for seed in seeds]
+
+
+def tracker_count(folder: Path, motion: str, episodes: int) -> int:
+    """The tracker's successes at ``TARGET`` over a set's ``episodes`` of ``motion``."""
+    shares = tracker_success(folder)
+    if motion not in shares:
+        raise SystemExit(f"{folder}: no tracker success for {motion} (results.json, or crb_bound.py --tracker)")
+    return round(shares[motion] * episodes / 100)
 
 
 def main() -> None:
@@ -44,11 +51,18 @@ def main() -> None:
     args = parser.parse_args()
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
+    missing = [name for name in SETS if not (args.root / name / "crb_bound.md").is_file()]
+    if missing:
+        raise SystemExit(f"--root {args.root}: no crb_bound.md in {missing}; run the held-out sets first")
     names = [name for name in SETS if args.motion in bound_rows(args.root / name)]
-    successes = sum(round(tracker_success(args.root / name)[args.motion] * EPISODES / 100) for name in names)
+    if not names:
+        raise SystemExit(f"--motion {args.motion}: no held-out set under {args.root} ran it")
+    episodes = [int(bound_rows(args.root / name)[args.motion]["episodes"]) for name in names]
+    successes = sum(tracker_count(args.root / name, args.motion, n) for name, n in zip(names, episodes))
     first_seeds = [int(SETS[name].split("-")[0]) for name in names]
     with ProcessPoolExecutor(args.workers) as pool:
-        chances = [c for chunk in pool.map(set_chances, first_seeds, [args.motion] * len(names)) for c in chunk]
+        per_set = pool.map(set_chances, first_seeds, episodes, [args.motion] * len(names))
+        chances = [chance for chunk in per_set for chance in chunk]
     low, high = efficient_count_range(chances)
     count = len(chances)
     print(f"{args.motion}: {len(names)} sets, {count} episodes ({', '.join(str(s) for s in first_seeds)})")

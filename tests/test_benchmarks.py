@@ -41,8 +41,8 @@ def test_the_count_range_and_the_chance_of_as_few_match_a_monte_carlo():
 
 def test_the_heldout_figure_reads_the_bound_tables_at_one_metre(tmp_path):
     """A crb_bound.md with a 1 m table without and one with the tracker and oracle columns, then a 0.5 m table: the
-    figure takes the last 1 m table's efficient estimator (share and range) and the tracker's and MAP's shares where
-    it has them; a set without a results.json takes the tracker's share from that table."""
+    figure takes the last 1 m table's row of a motion (the efficient estimator's share and range, and the tracker's and
+    MAP's shares where it has them); the tracker's share comes from a results.json where the set has one."""
     header = "| motion | episodes | bound < {t} m to the end | first time | efficient | its count, 90 % range |"
     tables = [
         header.format(t="1.0"), "|---|---|---|---|---|---|", "| cv | 100 | 96% | 23.5 | 95% | 92-98 |",
@@ -53,9 +53,12 @@ def test_the_heldout_figure_reads_the_bound_tables_at_one_metre(tmp_path):
     ]  # fmt: skip
     (tmp_path / "crb_bound.md").write_text("Some prose.\n\n" + "\n".join(tables) + "\n")
     rows = bound_rows(tmp_path)
-    assert rows["cv"] == {"efficient": 94.0, "low": 91.0, "high": 97.0, "tracker": 93.0, "map": 97.0}
-    assert rows["static"] == {"efficient": 100.0, "low": 100.0, "high": 100.0}
+    assert rows["cv"] == {"episodes": 100, "efficient": 94.0, "low": 91.0, "high": 97.0, "tracker": 93.0, "map": 97.0}
+    assert rows["static"] == {"episodes": 100, "efficient": 100.0, "low": 100.0, "high": 100.0}
     assert tracker_success(tmp_path) == {"cv": 93.0}
+    summary = [{"motion": "cv", "success_rate": {"1.0": 0.95}}]  # evaluate.py's, where the set has one
+    (tmp_path / "results.json").write_text(json.dumps({"summary": summary}))
+    assert tracker_success(tmp_path) == {"cv": 95.0}
 
 
 def test_the_reproduction_check_maps_a_paper_logs_variants_and_skips_timings():

@@ -3,6 +3,7 @@
 import json
 import os
 import stat
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -43,6 +44,19 @@ def test_a_written_file_has_the_mode_a_plain_write_gives(tmp_path, umask):
         os.umask(previous)
     mode = stat.S_IMODE((tmp_path / "plain.md").stat().st_mode)
     assert stat.S_IMODE((tmp_path / "atomic.md").stat().st_mode) == mode == 0o666 & ~umask
+
+
+def test_a_writer_that_replaces_the_temporary_file_still_gives_a_new_files_mode(tmp_path):
+    """A library may write elsewhere and move its file onto the path it was given (mkstemp's private 0o600)."""
+
+    def replace_it(tmp: str) -> None:
+        fd, own = tempfile.mkstemp(dir=tmp_path)
+        os.close(fd)
+        os.replace(own, tmp)
+
+    atomic_write(tmp_path / "model.zip", replace_it)
+    (tmp_path / "plain.md").write_text("x")
+    assert stat.S_IMODE((tmp_path / "model.zip").stat().st_mode) == stat.S_IMODE((tmp_path / "plain.md").stat().st_mode)
 
 
 def test_a_write_leaves_the_umask_alone(tmp_path, monkeypatch):
