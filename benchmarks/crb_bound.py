@@ -376,9 +376,15 @@ def main(argv: list[str] | None = None) -> None:
     print_table(header, rows(), args.out)
 
 
+def bound_env(base: EnvConfig, motion: str, patrol: str) -> AASLEnv:
+    """The env whose episodes :func:`episode_covariance` bounds: ``base`` with ``motion``'s sources, flown by ``patrol``
+    (the bound needs no tracker: the naive initializer, the cheapest)."""
+    return AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol=patrol)
+
+
 def motion_row(args: argparse.Namespace, base: EnvConfig, motion: str, level: float | None, rng) -> str:
     """One table row: the bound (and the tracker, with ``--tracker``) over the episodes of ``motion``."""
-    env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol=args.patrol)
+    env = bound_env(base, motion, args.patrol)
     if args.tracker:
         matched = base.replace(source={"motion": motion}, filter={"motion_model": MATCHED[motion]})
         tracker_env = AASLEnv(matched, patrol=args.patrol)

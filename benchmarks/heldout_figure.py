@@ -69,6 +69,11 @@ def bound_rows(folder: Path) -> dict[str, dict[str, float]]:
     return rows
 
 
+def missing_sets(root: Path) -> list[str]:
+    """The held-out sets (:data:`SETS`) with no ``crb_bound.md`` under ``root``."""
+    return [name for name in SETS if not (root / name / "crb_bound.md").is_file()]
+
+
 def figure(root: Path) -> Figure:
     """One panel per motion: per held-out set under ``root`` that ran it, the tracker's, the exact MAP's and an
     efficient estimator's success at ``TARGET``, and the issue's bar."""
@@ -106,8 +111,7 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=Path("reports/tracker"), help="folder holding the held-out sets")
     parser.add_argument("--out", type=Path, default=Path("reports/tracker/point1_heldout.png"))
     args = parser.parse_args()
-    missing = [name for name in SETS if not (args.root / name / "crb_bound.md").is_file()]
-    if missing:
+    if missing := missing_sets(args.root):
         raise SystemExit(f"--root {args.root}: no crb_bound.md in {missing}; run the held-out sets first (README)")
     fig = figure(args.root)
     atomic_write(args.out, lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))

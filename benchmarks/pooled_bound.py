@@ -18,18 +18,16 @@ from pathlib import Path
 
 import numpy as np
 
-from aasl_gym.env import AASLEnv
 from aasl_gym.scenarios import command_line_config
-from crb_bound import as_few_chance, efficient_count_range, efficient_success, episode_covariance
-from heldout_figure import SETS, TARGET, bound_rows, tracker_success
+from crb_bound import as_few_chance, bound_env, efficient_count_range, efficient_success, episode_covariance
+from heldout_figure import SETS, TARGET, bound_rows, missing_sets, tracker_success
 
 CONFIG = "configs/initializer_study.yaml"
 
 
 def set_chances(first_seed: int, episodes: int, motion: str) -> list[float]:
     """An efficient estimator's chance of ending within ``TARGET`` in each of the ``episodes`` from ``first_seed``."""
-    base = command_line_config(None, CONFIG, CONFIG)
-    env = AASLEnv(base.replace(source={"motion": motion}, initializer={"name": "naive"}), patrol="helix")
+    env = bound_env(command_line_config(None, CONFIG, CONFIG), motion, "helix")
     rng = np.random.default_rng(first_seed)
     seeds = range(first_seed, first_seed + episodes)
     return [efficient_success(episode_covariance(env, seed)[-1], TARGET, rng) for seed in seeds]
@@ -51,13 +49,13 @@ def main() -> None:
     args = parser.parse_args()
     if args.workers < 1:
         parser.error(f"--workers must be >= 1, got {args.workers}")
-    missing = [name for name in SETS if not (args.root / name / "crb_bound.md").is_file()]
-    if missing:
+    if missing := missing_sets(args.root):
         raise SystemExit(f"--root {args.root}: no crb_bound.md in {missing}; run the held-out sets first")
-    names = [name for name in SETS if args.motion in bound_rows(args.root / name)]
+    rows = {name: bound_rows(args.root / name) for name in SETS}
+    names = [name for name in SETS if args.motion in rows[name]]
     if not names:
         raise SystemExit(f"--motion {args.motion}: no held-out set under {args.root} ran it")
-    episodes = [int(bound_rows(args.root / name)[args.motion]["episodes"]) for name in names]
+    episodes = [int(rows[name][args.motion]["episodes"]) for name in names]
     successes = sum(tracker_count(args.root / name, args.motion, n) for name, n in zip(names, episodes))
     first_seeds = [int(SETS[name].split("-")[0]) for name in names]
     with ProcessPoolExecutor(args.workers) as pool:
