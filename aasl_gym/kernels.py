@@ -739,6 +739,7 @@ def whitened_chain(local: np.ndarray, motion: np.ndarray, white: np.ndarray) -> 
 
 # Starts per block of :func:`_fit_terms`: its scratch rows (about a hundred per start) then stay in the core's caches.
 FIT_BLOCK = 64
+DIRECT_PATH, FRAME_PHASOR, INSTANT_PHASOR = 0, 1, 2  # the measurement models the window fit's pass knows
 # Starts per pass of :func:`_fit_terms`' vectorised loops as LLVM compiles them: one AVX-512 vector, two AVX2.
 LANES = 8
 
@@ -952,6 +953,39 @@ def _direct_at_sample(lanes, k, width, receivers, fixed, value, local, receiver)
 
 
 @numba.njit(inline="always", error_model="numpy")
+def _phasor_at_sample(lanes, k, width, receivers, fixed, channel, value, local, receiver):
+    """The geometric worlds' phasor model's [RD, RRD] (``value`` (2, B)) and its Jacobians in [p, v] (``local``
+    (12, B)) and in [p_m, v_m] (``receiver`` (12, B)) at sample k, as :func:`phasor_linearized` gives them: the RD's
+    gradients from the pass, the RRD's position columns a central difference in time of those gradients
+    (``RATE_JACOBIAN_STEP``); laid out as :func:`_frame_mean_slope` lays out the frame model's."""
+    depth, surface_gain, bed_gain, wavenumber = channel[0], channel[1], channel[2], channel[3]
+    mx, my, mz = receivers[0, k], receivers[1, k], receivers[2, k]
+    mvx, mvy, mvz = receivers[3, k], receivers[4, k], receivers[5, k]
+    fx, fy, fz = fixed[0], fixed[1], fixed[2]
+    step = RATE_JACOBIAN_STEP
+    for i in range(width):
+        sx, sy, sz, vx, vy, vz = lanes[0, i], lanes[1, i], lanes[2, i], lanes[3, i], lanes[4, i], lanes[5, i]
+        now = _pair(sx, sy, sz, mx, my, mz, fx, fy, fz, depth, surface_gain, bed_gain, wavenumber)
+        ahead = _pair(
+            sx + step * vx, sy + step * vy, sz + step * vz, mx + step * mvx, my + step * mvy, mz + step * mvz,
+            fx, fy, fz, depth, surface_gain, bed_gain, wavenumber,
+        )  # fmt: skip
+        behind = _pair(
+            sx - step * vx, sy - step * vy, sz - step * vz, mx - step * mvx, my - step * mvy, mz - step * mvz,
+            fx, fy, fz, depth, surface_gain, bed_gain, wavenumber,
+        )  # fmt: skip
+        # Two arctangents, as the filters' model (:func:`_apparent`): each receiver's phase wrapped on its own.
+        value[0, i] = now[0] + (_atan2(now[4], now[3]) - _atan2(now[2], now[1])) / wavenumber
+        source_rate = now[5] * vx + now[6] * vy + now[7] * vz
+        value[1, i] = source_rate + (now[8] * mvx + now[9] * mvy + now[10] * mvz)
+        for q in range(3):
+            local[q, i], local[3 + q, i], local[9 + q, i] = now[5 + q], 0.0, now[5 + q]
+            local[6 + q, i] = (ahead[5 + q] - behind[5 + q]) / (2 * step)
+            receiver[q, i], receiver[3 + q, i], receiver[9 + q, i] = now[8 + q], 0.0, now[8 + q]
+            receiver[6 + q, i] = (ahead[8 + q] - behind[8 + q]) / (2 * step)
+
+
+@numba.njit(inline="always", error_model="numpy")
 def _sample_terms(k, width, states, measured, noise, variances, period, robust, value, receiver, white, error):
     """R_eff's whitener (``white`` rows w00, w10, w11), the whitened residual and its IRLS weight (``error`` rows
     e0, e1, v0, v1) and its loss (row 4) at sample k, as :func:`_window_terms` and the soft-L1 loss give them. A pass
@@ -998,7 +1032,7 @@ def _block_terms(states, start, width, motion, points, fold, data, scratch, loss
     """:func:`fit_terms`' sums for one block: the loss (B,), J^T V J (n, n, B; its upper triangle) and J^T V W r
     (n, B) of the block's ``width`` states (n, B), the starts ``start`` onwards of ``points`` and ``motion``.
     ``data`` and ``scratch`` are tuples of the pass's constants and work arrays (see :func:`_fit_terms`)."""
-    receivers, fixed, offsets, channel, measured, noise, variances, period, robust, wavelength, direct = data
+    receivers, fixed, offsets, channel, measured, noise, variances, period, robust, wavelength, kind = data
     lanes, rows_at_offsets, unwrapped, slips, value, local, receiver, white, error, rows = scratch
     moving = motion.shape[2]
     dim = moving + 2
@@ -1008,8 +1042,10 @@ def _block_terms(states, start, width, motion, points, fold, data, scratch, loss
     loss[:] = 0.0
     for k in range(measured.shape[0]):
         _lane_states(states, motion, points, k, start, width, fold, lanes)
-        if direct:
+        if kind == DIRECT_PATH:
             _direct_at_sample(lanes, k, width, receivers, fixed, value, local, receiver)
+        elif kind == INSTANT_PHASOR:
+            _phasor_at_sample(lanes, k, width, receivers, fixed, channel, value, local, receiver)
         else:
             _frame_at_sample(lanes, k, width, receivers, fixed, offsets, channel, rows_at_offsets)
             _frame_mean_slope(width, offsets, wavelength, rows_at_offsets, unwrapped, slips, value, local, receiver)
@@ -1097,23 +1133,32 @@ def _fold_slab(bounds: tuple[float, float] | None) -> np.ndarray:
     return np.array([0.0, 0.0] if bounds is None else [bounds[0], bounds[1] - bounds[0]], dtype=float)
 
 
+def _model_kind(offsets, propagation) -> int:
+    """The pass's measurement model: the direct path (``propagation`` None), the geometric worlds' instantaneous
+    phasor model (``offsets`` None) or the frame-averaged one."""
+    if propagation is None:
+        return DIRECT_PATH
+    return INSTANT_PHASOR if offsets is None else FRAME_PHASOR
+
+
 def _constants(receivers, fixed, offsets, propagation, measured, noise, navigation_sd, period, robust) -> tuple:
     """What :func:`_block_terms` reads besides the states, as its arrays and numbers; ``propagation`` None for the
-    direct path (no frame: ``offsets`` are not read)."""
-    direct = propagation is None
+    direct path, ``offsets`` None for the instantaneous phasor model (no frame: ``offsets`` are not read)."""
+    kind = _model_kind(offsets, propagation)
+    direct = kind == DIRECT_PATH
     channel = np.zeros(4) if direct else np.array(propagation.channel, dtype=float)
     return (
         np.ascontiguousarray(np.concatenate(receivers, axis=1).T, dtype=float),  # (6, K)
         _fixed_point(fixed),
-        np.zeros(0) if direct else np.asarray(offsets, dtype=float),
+        np.zeros(0) if kind != FRAME_PHASOR else np.asarray(offsets, dtype=float),
         channel,
         np.ascontiguousarray(measured, dtype=float),
         np.asarray(noise, dtype=float),
         np.square(np.asarray(navigation_sd, dtype=float)),
         0.0 if period is None else float(period),
         bool(robust),
-        0.0 if direct else 2 * np.pi / propagation.wavenumber,  # the frame's unwrapping period
-        direct,
+        2 * np.pi / propagation.wavenumber if kind == FRAME_PHASOR else 0.0,  # the frame's unwrapping period
+        kind,
     )
 
 
@@ -1132,12 +1177,12 @@ def fit_terms(
     period: float | None,
     robust: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A window fit's Gauss-Newton terms under the frame-averaged phasor model or the direct path, in one compiled pass
-    per start: the loss sum_k rho(|W_k r_k|^2) (C,), the normal matrix J^T V J (C, n, n) and J^T V W r (C, n), with
-    r_k = z_k - h(x(t_k)) - b, W_k R_eff's whitener along the start's own trajectory, J the whitened prediction's
-    Jacobian and V the IRLS weights of soft-L1 (``robust``) or ones. The same as :func:`frame_phasor` (or the direct
-    path's NumPy forms), :func:`window_terms` and :func:`whitened_chain` followed by NumPy's sums, to rounding
-    (``tests/test_window.py``).
+    """A window fit's Gauss-Newton terms under the direct path or a phasor model (frame-averaged, or a geometric world's
+    instantaneous one), in one compiled pass per start: the loss sum_k rho(|W_k r_k|^2) (C,), the normal matrix
+    J^T V J (C, n, n) and J^T V W r (C, n), with r_k = z_k - h(x(t_k)) - b, W_k R_eff's whitener along the start's own
+    trajectory, J the whitened prediction's Jacobian and V the IRLS weights of soft-L1 (``robust``) or ones. The same
+    as :func:`frame_phasor` (or :func:`phasor_linearized`, or the direct path's NumPy forms), :func:`window_terms` and
+    :func:`whitened_chain` followed by NumPy's sums, to rounding (``tests/test_window.py``).
 
     ``states`` (C, n) in the filter's layout at the window's last sample, [b_p, b_v] last. Either ``motion`` is one
     free motion for every state, d[p, v](t_k)/d x (K, 6, n - 2)
@@ -1145,7 +1190,8 @@ def fit_terms(
     along it, folded into ``fold`` (z_min, z_max; m) unless None; or ``motion`` is each state's own (C, K, 6, n - 2)
     and ``trajectory`` (C, K, 6+) its source positions and velocities (m, m/s). ``receivers`` the mobile's positions
     and velocities (K, 3 each), ``fixed`` (3,), the frame's ``offsets`` (s) and ``propagation`` (a
-    :class:`aasl_gym.measurement_models.Propagation`; both None for the direct path), ``measured`` (K, 2), ``noise``
+    :class:`aasl_gym.measurement_models.Propagation`; both None for the direct path, ``offsets`` None for the
+    instantaneous phasor model), ``measured`` (K, 2), ``noise``
     R_ac (2, 2), ``navigation_sd`` (m, m/s), the RD residual taken modulo ``period`` (m) unless None."""
     count, dim = states.shape
     take = _padded(count)
@@ -1322,8 +1368,8 @@ def fit(
     iterations: int,
     max_position_step: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Levenberg-Marquardt window fits under the frame-averaged phasor model or the direct path, compiled whole, for a
-    motion model whose free motion is one matrix ``motion`` (K, 6, n - 2) for every state (folded into ``fold``
+    """Levenberg-Marquardt window fits under the direct path or a phasor model (:func:`fit_terms`), compiled whole, for
+    a motion model whose free motion is one matrix ``motion`` (K, 6, n - 2) for every state (folded into ``fold``
     unless None): from ``states`` (C, n), with the prior ``prior_mean`` (C, n) and ``prior_sd`` (n,), the fitted
     states (C, n), their costs (C,) and information (C, n, n). ``burst_data`` are :func:`fit_terms`' arguments from
     ``receivers`` to ``robust``. See :func:`aasl_gym.window.fit_window`, whose loop over :func:`fit_terms` this is."""

@@ -193,15 +193,18 @@ def phasor_window(
 @pytest.mark.parametrize("motion_model, speed_limit", [("cv", None), ("ctrv", None), ("ca", None), ("ca", 1.0)])
 @pytest.mark.parametrize("folded", [False, True], ids=["free", "folded"])
 @pytest.mark.parametrize("robust", [False, True], ids=["plain", "robust"])
-@pytest.mark.parametrize("measurement, count", [(direct_measurement, 70), (FRAME, 70), (direct_measurement, 1)],
-                         ids=["direct", "frame", "direct-one"])  # fmt: skip
+@pytest.mark.parametrize(
+    "measurement, count",
+    [(direct_measurement, 70), (FRAME, 70), (PHASOR, 70), (direct_measurement, 1), (PHASOR, 1)],
+    ids=["direct", "frame", "phasor", "direct-one", "phasor-one"],
+)
 def test_the_compiled_terms_are_the_numpy_terms(motion_model, speed_limit, folded, robust, measurement, count):
     """A fit's loss, normal matrix and gradient from the one compiled pass against the NumPy route (the measurement
-    model - the direct path or the frame model -, whitener, chained Jacobian, batched products), to rounding: for
-    linear models that the pass runs itself (CV, CA) and for those whose trajectories it is handed (CTRV, CA at a
-    speed limit), with trajectories folded at a depth bound or not, for 70 starts (a block of 64 and a padded
-    remainder) around and far off the truth, and the direct path's lone start (unpadded: its one given trajectory
-    must not pass for a shared free motion)."""
+    model - the direct path, the frame model or a geometric world's phasor model -, whitener, chained Jacobian,
+    batched products), to rounding: for linear models that the pass runs itself (CV, CA) and for those whose
+    trajectories it is handed (CTRV, CA at a speed limit), with trajectories folded at a depth bound or not, for 70
+    starts (a block of 64 and a padded remainder) around and far off the truth, and a lone start of the models that
+    take the pass for one (unpadded: its one given trajectory must not pass for a shared free motion)."""
     from aasl_gym.window import _compiled_terms, _numpy_terms
 
     burst, model, truth = phasor_window(motion_model, folded, speed_limit, measurement)
@@ -216,11 +219,16 @@ def test_the_compiled_terms_are_the_numpy_terms(motion_model, speed_limit, folde
     states = states[:count]
     loss, linearize = _compiled_terms(burst, model, states, robust)
     expected_loss, expected_linearize = _numpy_terms(burst, model, states, robust)
-    np.testing.assert_allclose(loss, expected_loss, rtol=1e-12)
+    # The geometric phasor model's RRD columns in position are a central difference over 1e-5 s
+    # (kernels.RATE_JACOBIAN_STEP), which magnifies the rounding of the trajectories some 1e5 times, and CA's
+    # trajectories differ by rounding between the two routes (the pass runs them from its motion matrix, NumPy
+    # from the model; CV's agree to the bit, and a speed-limited CA's are handed over).
+    own_trajectories = measurement is PHASOR and motion_model == "ca" and speed_limit is None
+    np.testing.assert_allclose(loss, expected_loss, rtol=1e-9 if own_trajectories else 1e-12)
     rows = rng.random(count) < 0.5 if count > 1 else np.array([True])  # a fit asks for the rows whose steps it took
     for got, expected in zip(linearize(rows), expected_linearize(rows)):
         scale = np.abs(expected).max(axis=tuple(range(1, expected.ndim)), keepdims=True)
-        np.testing.assert_allclose(got / scale, expected / scale, rtol=0, atol=1e-11)
+        np.testing.assert_allclose(got / scale, expected / scale, rtol=0, atol=1e-6 if own_trajectories else 1e-11)
 
 
 @pytest.mark.parametrize("motion_model", ["cv", "ctrv"])
@@ -243,15 +251,15 @@ def test_the_compiled_direct_terms_hold_without_a_period_or_a_robust_loss(motion
 
 @pytest.mark.parametrize(
     "measurement, count",
-    [(FRAME, 12), (direct_measurement, 12), (direct_measurement, 1)],
-    ids=["frame", "direct", "one"],
+    [(FRAME, 12), (PHASOR, 12), (direct_measurement, 12), (direct_measurement, 1), (PHASOR, 1)],
+    ids=["frame", "phasor", "direct", "one", "phasor-one"],
 )
 def test_a_fit_by_the_compiled_pass_lands_where_the_numpy_route_does(measurement, count, monkeypatch):
     """The same Levenberg-Marquardt from ``count`` starts within 0.5 m of a folded CV source near the surface, three
     ways: compiled whole (:func:`aasl_gym.kernels.fit`), the Python loop over the compiled pass handed the
     trajectories, and the loop over NumPy's terms with LAPACK's solve. They end at the same states, costs and
-    information (rounding only), most of them at the truth. The direct path takes the compiled pass even for one
-    start (unpadded)."""
+    information (rounding only), most of them at the truth. The direct path and a geometric world's phasor model
+    take the compiled pass even for one start (unpadded)."""
     import aasl_gym.window as window_module
 
     burst, model, truth = phasor_window("cv", folded=True, measurement=measurement)
@@ -274,5 +282,5 @@ def test_a_fit_by_the_compiled_pass_lands_where_the_numpy_route_does(measurement
         scale = np.abs(numpy_route.information).max()
         np.testing.assert_allclose(compiled.information, numpy_route.information, rtol=1e-6, atol=1e-12 * scale)
     # The direct path carries less information than the frame model's interference: the prior pulls it 2 cm off.
-    tolerance = 0.01 if measurement is FRAME else 0.05
+    tolerance = 0.05 if measurement is direct_measurement else 0.01
     assert np.median(np.linalg.norm(numpy_route.states[:, 0:3] - truth[0:3], axis=1)) < tolerance
