@@ -31,8 +31,9 @@ fit).
 The window fit's per-sample algebra (:func:`window_terms`, :func:`whitened_chain`) is a few dozen flops on
 2 x 2 and 2 x 6 blocks per sample; as NumPy expressions it was two dozen calls on small arrays and stacked
 matrix products of 2 x 6 blocks, which NumPy loops over one by one (a third of a fit's time, session 27).
-A phasor-model fit now runs in one pass per start (:func:`fit_terms`, and :func:`fit` for the whole
-Levenberg-Marquardt): the frame model, R_eff's whitener, the chained Jacobian and the normal equations of a
+A window fit now runs in one pass per start (:func:`fit_terms`, and :func:`fit` for the whole
+Levenberg-Marquardt): the measurement model (the frame-averaged phasor model, a geometric world's instantaneous one
+or the direct path), R_eff's whitener, the chained Jacobian and the normal equations of a
 block of starts, sample by sample, in cache, with no array between the stages. Every stage's innermost loop runs
 over the block's starts, so it vectorises, and each start sums its own samples in order, so the result does not
 depend on the vector width. The arctangent is a polynomial too (:func:`_atan2`): in a loop the C library's is a
@@ -44,7 +45,8 @@ unless told to); the loops above only agree with their NumPy forms to a few unit
 
 A geometric world's phasor model, [RD, RRD] (:func:`phasor_measurement`), is the apparent RD's pass with its rate
 taken along the RD's gradients: a geometric default-world episode (CV, helix, seeds 0-2) ran 45 steps/s with NumPy's
-form and 112 with this one (session 45).
+form and 112 with this one (session 45). Its window fits run in the fit's pass (:func:`_phasor_at_sample`, session
+50: the geometric default world's whole episodes some 17 % faster than with NumPy's Levenberg-Marquardt).
 
 The direct path runs in the same pass (:func:`_direct`: the values and both Jacobians in closed form), for window
 fits from one start on (session 32: a lone start runs unpadded), and in one pass over LC-MAP's grid
@@ -362,8 +364,8 @@ def phasor_measurement(
     fixed hydrophone (3,): the apparent RD of :func:`phasor_paths` and its time derivative - the fixed hydrophone
     being still, the RD's gradients along the source's and the mobile's velocities - from one compiled pass. The
     same as :func:`aasl_gym.geometry.phasor_multipath` (NumPy's, which differentiates each receiver's phase in time)
-    to rounding (``tests/test_kernels.py``); a geometric world's sensor and filters run it at every step, its
-    window fits at every trial state and sample."""
+    to rounding (``tests/test_kernels.py``); a geometric world's sensor and filters run it at every step (its window
+    fits, the same model in the fit's pass: :func:`_phasor_at_sample`)."""
     shape, rows = _rows(position, mobile, velocity, mobile_velocity)
     paths = _paths(rows, _fixed_point(fixed), water_depth, surface_reflection, bed_reflection, wavenumber)
     return np.moveaxis(_measured(paths, rows, wavenumber).reshape((2, *shape)), 0, -1)

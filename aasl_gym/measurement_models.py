@@ -141,9 +141,10 @@ def frame_offsets(duration: float, samples: int) -> np.ndarray:
 @dataclass(frozen=True, eq=False)
 class PhasorModel:
     """The phasor model's instantaneous [RD, RRD] (:func:`multipath_measurement`'s ``phasor``, a geometric world's),
-    with both of its Jacobians (:func:`aasl_gym.kernels.phasor_linearized`): a window fit takes them from one call
-    instead of differencing the model in every state component. A measurement function: (p, v, p_m, v_m, p_f) ->
-    (..., 2)."""
+    with both of its Jacobians (:func:`aasl_gym.kernels.phasor_linearized`): R_eff's navigation term and the window's
+    chi-square take them from one call instead of differencing the model in every state component, and a window fit
+    runs the same model in its compiled pass (:func:`aasl_gym.kernels.fit_terms`). A measurement function:
+    (p, v, p_m, v_m, p_f) -> (..., 2)."""
 
     propagation: Propagation
 

@@ -122,7 +122,7 @@ def _evaluate(burst: Burst, model: MotionModel, states: np.ndarray):
     A model with a ``linearize`` method (the phasor models) takes the compiled per-sample terms
     (:func:`aasl_gym.kernels.window_terms`); the direct path keeps the NumPy form here. A fit of the direct path or of
     the phasor models takes the compiled pass instead (:func:`_compiled_model`); this form serves the window chi-square
-    (:func:`whitened_residuals`), the few-start phasor-model fits and the tests' reference route."""
+    (:func:`whitened_residuals`), the few-start frame-model fits and the tests' reference route."""
     trajectory = _trajectory(burst, model, states)
     linearize = getattr(burst.measurement_function, "linearize", None)
     if linearize is None:
@@ -229,7 +229,8 @@ def _compiled_model(burst: Burst, count: int) -> bool:
     track: 0.35 against 0.6 ms a pass). The direct path is cheap enough, and the instantaneous phasor model's NumPy
     form (three passes of the model and their arrays) dear enough, that the pass wins even for one start, which then
     runs alone, unpadded (:func:`aasl_gym.kernels.fit`, or :func:`aasl_gym.kernels.fit_terms` for CTRV and a
-    speed-limited CA; session 50: the geometric default world's track checks 580 -> 320 us a step)."""
+    speed-limited CA; session 50, timers on seeds 0-3: the geometric default world's track checks, whose fits have
+    one or two starts, 583 -> 324 us a step)."""
     model = burst.measurement_function
     if model is direct_measurement or isinstance(model, PhasorModel):
         return True
@@ -260,8 +261,8 @@ def _model_data(burst: Burst, robust: bool) -> tuple:
 
 
 def _compiled_terms(burst: Burst, model: MotionModel, states: np.ndarray, robust: bool):
-    """:func:`_numpy_terms` in one compiled pass (:func:`aasl_gym.kernels.fit_terms`) for the direct path or the
-    frame-averaged phasor model: the normal equations come with the loss, for every state."""
+    """:func:`_numpy_terms` in one compiled pass (:func:`aasl_gym.kernels.fit_terms`) for the direct path or a phasor
+    model (:func:`_compiled_model`): the normal equations come with the loss, for every state."""
     lags = burst.times - burst.times[-1]
     motion, trajectory = model.free_motion_matrix(lags), None
     if motion is None:  # the pass cannot run the states along the model itself

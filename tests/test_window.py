@@ -219,10 +219,11 @@ def test_the_compiled_terms_are_the_numpy_terms(motion_model, speed_limit, folde
     states = states[:count]
     loss, linearize = _compiled_terms(burst, model, states, robust)
     expected_loss, expected_linearize = _numpy_terms(burst, model, states, robust)
-    # The geometric phasor model's RRD columns in position are a central difference over 1e-5 s
-    # (kernels.RATE_JACOBIAN_STEP), which magnifies the rounding of the trajectories some 1e5 times, and CA's
-    # trajectories differ by rounding between the two routes (the pass runs them from its motion matrix, NumPy
-    # from the model; CV's agree to the bit, and a speed-limited CA's are handed over).
+    # The geometric phasor model's RRD columns in position are a central difference of the RD's gradients over 1e-5 s
+    # (kernels.RATE_JACOBIAN_STEP), which magnifies the gradients' rounding some 1e5 times. CA's trajectories differ
+    # by rounding between the two routes (the pass runs them from its motion matrix, NumPy from the model; CV's agree
+    # to the bit, and a speed-limited CA's are handed over): so do those columns, and the loss through R_eff's
+    # navigation term, which reads them.
     own_trajectories = measurement is PHASOR and motion_model == "ca" and speed_limit is None
     np.testing.assert_allclose(loss, expected_loss, rtol=1e-9 if own_trajectories else 1e-12)
     rows = rng.random(count) < 0.5 if count > 1 else np.array([True])  # a fit asks for the rows whose steps it took
@@ -281,6 +282,6 @@ def test_a_fit_by_the_compiled_pass_lands_where_the_numpy_route_does(measurement
         # Entries that cancel to rounding (the direct path's: 1e-14 against 1e4) are held to the matrix's scale.
         scale = np.abs(numpy_route.information).max()
         np.testing.assert_allclose(compiled.information, numpy_route.information, rtol=1e-6, atol=1e-12 * scale)
-    # The direct path carries less information than the frame model's interference: the prior pulls it 2 cm off.
+    # The direct path carries less information than the phasor models' interference: the prior pulls it 2 cm off.
     tolerance = 0.05 if measurement is direct_measurement else 0.01
     assert np.median(np.linalg.norm(numpy_route.states[:, 0:3] - truth[0:3], axis=1)) < tolerance
