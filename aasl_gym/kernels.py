@@ -46,7 +46,7 @@ unless told to); the loops above only agree with their NumPy forms to a few unit
 A geometric world's phasor model, [RD, RRD] (:func:`phasor_measurement`), is the apparent RD's pass with its rate
 taken along the RD's gradients: a geometric default-world episode (CV, helix, seeds 0-2) ran 45 steps/s with NumPy's
 form and 112 with this one (session 45). Its window fits run in the fit's pass (:func:`_phasor_at_sample`, session
-50: the geometric default world's whole episodes some 17 % faster than with NumPy's Levenberg-Marquardt).
+50: the geometric default world's whole episodes some 18 % faster than with NumPy's Levenberg-Marquardt).
 
 The direct path runs in the same pass (:func:`_direct`: the values and both Jacobians in closed form), for window
 fits from one start on (session 32: a lone start runs unpadded), and in one pass over LC-MAP's grid

@@ -30,7 +30,7 @@ the phasor models' per-sample terms and chained Jacobian compiled (:func:`aasl_g
 :func:`aasl_gym.kernels.whitened_chain`). The routes agree to rounding (``tests/test_window.py``). (Until session 32
 the direct path kept the NumPy route, to keep the free-field studies' bits; compiled, a one-start re-seed fit on 260
 samples takes 0.9 ms against 2.2. Until session 50 the geometric worlds' phasor model kept it too; compiled, the
-geometric default world's fits take a quarter less time and its whole episodes run some 17 % faster.)
+geometric default world's fits take a quarter less time and its whole episodes run some 18 % faster.)
 
 References: K. Madsen, H. B. Nielsen, O. Tingleff, "Methods for non-linear least squares problems",
 2004 (the damping schedule); B. Triggs et al., "Bundle adjustment - a modern synthesis", 2000
@@ -229,8 +229,8 @@ def _compiled_model(burst: Burst, count: int) -> bool:
     track: 0.35 against 0.6 ms a pass). The direct path is cheap enough, and the instantaneous phasor model's NumPy
     form (three passes of the model and their arrays) dear enough, that the pass wins even for one start, which then
     runs alone, unpadded (:func:`aasl_gym.kernels.fit`, or :func:`aasl_gym.kernels.fit_terms` for CTRV and a
-    speed-limited CA; session 50, timers on seeds 0-3: the geometric default world's track checks, whose fits have
-    one or two starts, 583 -> 324 us a step)."""
+    speed-limited CA; session 50, timers on seeds 0-3 with a study running beside them: the geometric default world's
+    track checks, whose fits have one or two starts, 583 -> 324 us a step against the pass from eight starts only)."""
     model = burst.measurement_function
     if model is direct_measurement or isinstance(model, PhasorModel):
         return True
