@@ -67,8 +67,8 @@ reassociation): only a bound, cleared by a margin, is taken from them (session 4
 detector's padded FFT).
 
 Compiled code is cached next to this file (``cache=True``): the first run on a machine compiles (about
-40 seconds on the development machine, most of it the window fit's pass; the filter bank's four kernels add 5),
-later processes load it (about 0.15 s, at the first call).
+50 seconds on the development machine, most of it the window fit's pass, which holds all three measurement models;
+the filter bank's four kernels add 5), later processes load it (about 0.15 s, at the first call).
 """
 
 from __future__ import annotations
