@@ -36,11 +36,11 @@ BARS = {"static": 98, "cv": 95, "ca": 50, "ctrv": 95}  # % at 1 m, issue 12 poin
 TARGET = 1.0  # m
 
 
-def tracker_success(folder: Path) -> dict[str, float]:
+def tracker_success(folder: Path, bounds: dict[str, dict[str, float]]) -> dict[str, float]:
     """The tracker's success at ``TARGET`` (%) per motion, from the run's ``results.json`` where it has one, else from
-    the bound table's tracker column."""
+    the tracker column of its bound table, ``bounds`` (:func:`bound_rows`, read once by the caller)."""
     if not (folder / "results.json").is_file():
-        return {motion: row["tracker"] for motion, row in bound_rows(folder).items() if "tracker" in row}
+        return {motion: row["tracker"] for motion, row in bounds.items() if "tracker" in row}
     summary = json.loads((folder / "results.json").read_text())["summary"]
     return {row["motion"]: 100 * row["success_rate"][str(TARGET)] for row in summary}
 
@@ -77,7 +77,8 @@ def missing_sets(root: Path) -> list[str]:
 def figure(root: Path) -> Figure:
     """One panel per motion: per held-out set under ``root`` that ran it, the tracker's, the exact MAP's and an
     efficient estimator's success at ``TARGET``, and the issue's bar."""
-    sets = {name: (tracker_success(root / name), bound_rows(root / name)) for name in SETS}
+    bounds = {name: bound_rows(root / name) for name in SETS}
+    sets = {name: (tracker_success(root / name, bounds[name]), bounds[name]) for name in SETS}
     shown = {motion: [name for name, (_, bounds) in sets.items() if motion in bounds] for motion in MOTIONS}
     fig = Figure(figsize=(14, 3.4))
     axes = fig.subplots(1, len(MOTIONS), sharey=False, width_ratios=[max(len(shown[m]), 3) for m in MOTIONS])

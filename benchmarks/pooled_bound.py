@@ -33,9 +33,9 @@ def set_chances(first_seed: int, episodes: int, motion: str) -> list[float]:
     return [efficient_success(episode_covariance(env, seed)[-1], TARGET, rng) for seed in seeds]
 
 
-def tracker_count(folder: Path, motion: str, episodes: int) -> int:
-    """The tracker's successes at ``TARGET`` over a set's ``episodes`` of ``motion``."""
-    shares = tracker_success(folder)
+def tracker_count(folder: Path, bounds: dict[str, dict[str, float]], motion: str, episodes: int) -> int:
+    """The tracker's successes at ``TARGET`` over a set's ``episodes`` of ``motion`` (``bounds`` its bound table)."""
+    shares = tracker_success(folder, bounds)
     if motion not in shares:
         raise SystemExit(f"{folder}: no tracker success for {motion} (results.json, or crb_bound.py --tracker)")
     return round(shares[motion] * episodes / 100)
@@ -56,7 +56,7 @@ def main() -> None:
     if not names:
         raise SystemExit(f"--motion {args.motion}: no held-out set under {args.root} ran it")
     episodes = [int(rows[name][args.motion]["episodes"]) for name in names]
-    successes = sum(tracker_count(args.root / name, args.motion, n) for name, n in zip(names, episodes))
+    successes = sum(tracker_count(args.root / name, rows[name], args.motion, n) for name, n in zip(names, episodes))
     first_seeds = [int(SETS[name].split("-")[0]) for name in names]
     with ProcessPoolExecutor(args.workers) as pool:
         per_set = pool.map(set_chances, first_seeds, episodes, [args.motion] * len(names))
