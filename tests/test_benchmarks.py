@@ -6,11 +6,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import stats
+
+from aasl_gym.config import load_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import bench_instructions
-from crb_bound import as_few_chance, efficient_count_range
+from crb_bound import as_few_chance, bound_env, efficient_count_range, efficient_success, episode_covariance
 from heldout_figure import bound_rows, tracker_success
 from reproduce_rows import differences, paper_variants
 
@@ -37,6 +40,67 @@ def test_the_count_range_and_the_chance_of_as_few_match_a_monte_carlo():
     assert np.mean(counts < low) <= 0.05 and np.mean(counts > high) <= 0.05
     for count in (low, int(np.median(counts)), high):
         assert abs(as_few_chance(list(chances), count) - np.mean(counts <= count)) < 0.01
+
+
+def _direct_path_rows(source, velocity, mobile, mobile_velocity, fixed):
+    """d[RD, RRD]/d[p_s, v_s] (K, 2, 6) of the direct path from its geometry (geometry.py's conventions, written out
+    here by hand): RD = |p_s - p_m| - |p_s - p_f|, RRD = (v_s - v_m) . u_m - v_s . u_f for a fixed p_f."""
+    rows = np.zeros((len(mobile), 2, 6))
+    for k, (p_m, v_m) in enumerate(zip(mobile, mobile_velocity)):
+        to_mobile, to_fixed = source[k] - p_m, source[k] - fixed
+        r_m, r_f = np.linalg.norm(to_mobile), np.linalg.norm(to_fixed)
+        u_m, u_f = to_mobile / r_m, to_fixed / r_f
+        rows[k, 0, :3] = rows[k, 1, 3:] = u_m - u_f
+        rows[k, 1, :3] = (np.eye(3) - np.outer(u_m, u_m)) @ (velocity - v_m) / r_m
+        rows[k, 1, :3] -= (np.eye(3) - np.outer(u_f, u_f)) @ velocity / r_f
+    return rows
+
+
+def test_the_cramer_rao_bound_is_the_closed_form_fisher_information_of_a_cv_track():
+    """``crb_bound.episode_covariance`` (finite differences of simulated tracks, point 1's bound) against the Fisher
+    information written out from the direct path's closed-form gradients for a CV source that keeps its line: the
+    prior, the two biases, R_eff and the position's covariance at every step, on the initializer study's world."""
+    config = load_config(ROOT / "configs/initializer_study.yaml").replace(episode={"duration": 30.0})
+    env = bound_env(config, "cv", "helix")
+    covariance = episode_covariance(env, seed=4)
+    env.reset(seed=4)
+    source, dt = env.source, env.dt
+    mobile, mobile_velocity = [], []
+    for _ in range(env.max_steps):
+        env.step(np.zeros(3))
+        mobile.append(env.receiver_position.copy())
+        mobile_velocity.append(env.receiver_velocity.copy())
+    times = dt * np.arange(1, env.max_steps + 1)
+    track = source.position + times[:, None] * source.velocity
+    assert np.allclose(env.source.position, track[-1])  # no bounce: the source kept its line
+    rows = _direct_path_rows(track, source.velocity, np.array(mobile), np.array(mobile_velocity), env.fixed)
+    jacobian = np.zeros((len(times), 2, 8))  # d z_k / d [p_0, v_0, b_p, b_v]
+    jacobian[:, :, :3] = rows[:, :, :3]
+    jacobian[:, :, 3:6] = rows[:, :, :3] * times[:, None, None] + rows[:, :, 3:]
+    jacobian[:, 0, 6] = jacobian[:, 1, 7] = 1.0
+    measurement, receiver, prior = config.measurement, config.receiver, config.initializer
+    noise = np.diag([measurement.range_difference_sd**2 + receiver.nav_position_sd**2,
+                     measurement.range_rate_difference_sd**2 + receiver.velocity_sd**2])  # fmt: skip
+    prior_sd = [prior.position_sd] * 3 + [prior.velocity_prior_sd] * 3 + [prior.range_bias_sd, prior.rate_bias_sd]
+    information = np.diag(np.array(prior_sd) ** -2.0) + np.cumsum(
+        np.swapaxes(jacobian, 1, 2) @ np.linalg.inv(noise) @ jacobian, axis=0
+    )
+    position = np.zeros((len(times), 3, 8))  # d p(t_k) / d [p_0, v_0, b_p, b_v]
+    position[:, :, :3] = np.eye(3)
+    position[:, :, 3:6] = times[:, None, None] * np.eye(3)
+    expected = position @ np.linalg.inv(information) @ np.swapaxes(position, 1, 2)
+    assert np.allclose(covariance, expected, rtol=1e-5, atol=1e-12)
+    assert np.sqrt(np.trace(covariance[-1])) < 0.5 * np.sqrt(np.trace(covariance[10]))  # the track tells
+
+
+def test_an_efficient_estimators_chance_is_the_chi_distributions_for_a_round_error():
+    """Point 1's efficient estimator: for an error N(0, s^2 I) the chance of |e| < t is the chi law's (3 dof) cdf at
+    t / s; a flat error along one axis, the normal's two-sided chance."""
+    rng = np.random.default_rng(11)
+    for sd in (0.3, 0.6, 1.2):
+        assert abs(efficient_success(sd**2 * np.eye(3), 1.0, rng) - stats.chi(3).cdf(1.0 / sd)) < 0.015
+    flat = np.diag([0.8**2, 1e-12, 1e-12])
+    assert abs(efficient_success(flat, 1.0, rng) - (2 * stats.norm.cdf(1.0 / 0.8) - 1)) < 0.015
 
 
 def test_the_heldout_figure_reads_the_bound_tables_at_one_metre(tmp_path):
