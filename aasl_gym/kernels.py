@@ -70,11 +70,12 @@ Compiled code is cached next to this file (``cache=True``): the first run on a m
 50 seconds on the development machine, most of it the window fit's pass, which holds all three measurement models;
 the filter bank's four kernels add 5), later processes load it (about 0.15 s, at the first call).
 
-Why one module for every stage's loops. numba keys a cached kernel on its own file's time stamp: a kernel that calls
-a compiled function from another file keeps its old machine code when only that other file changes (the limits of
-``cache=True`` in numba's user guide; numba issue #1833), so a split would let a kernel run a model the source no
-longer holds. For the same reason a module constant such as ``FIT_BLOCK`` or ``LANES`` is frozen into the cached
-code: change it in the source, not at run time.
+Why one module for every stage's loops. numba checks a cached kernel only against the file that defines it (a hash
+of its contents since numba 0.68, its time stamp and size before): a kernel that calls a compiled function from
+another file keeps its old machine code when only that other file changes (the limits of ``cache=True`` in numba's
+user guide; numba issue #1833), so a split would let a kernel run a model the source no longer holds. A separate limit
+of the cache: a module constant such as ``FIT_BLOCK`` or ``LANES`` is frozen into the cached code, so change it in
+the source, not at run time.
 """
 
 from __future__ import annotations

@@ -72,7 +72,8 @@ def test_the_cramer_rao_bound_is_the_closed_form_fisher_information_of_a_cv_trac
         mobile_velocity.append(env.receiver_velocity.copy())
     times = dt * np.arange(1, env.max_steps + 1)
     track = source.position + times[:, None] * source.velocity
-    assert np.allclose(env.source.position, track[-1])  # no bounce: the source kept its line
+    # No bounce: the source kept its line (a reflection would have turned its velocity too).
+    assert np.allclose(env.source.position, track[-1]) and np.array_equal(env.source.velocity, source.velocity)
     rows = _direct_path_rows(track, source.velocity, np.array(mobile), np.array(mobile_velocity), env.fixed)
     jacobian = np.zeros((len(times), 2, 8))  # d z_k / d [p_0, v_0, b_p, b_v]
     jacobian[:, :, :3] = rows[:, :, :3]
