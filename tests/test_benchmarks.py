@@ -51,44 +51,59 @@ def _direct_path_rows(source, velocity, mobile, mobile_velocity, fixed):
         r_m, r_f = np.linalg.norm(to_mobile), np.linalg.norm(to_fixed)
         u_m, u_f = to_mobile / r_m, to_fixed / r_f
         rows[k, 0, :3] = rows[k, 1, 3:] = u_m - u_f
-        rows[k, 1, :3] = (np.eye(3) - np.outer(u_m, u_m)) @ (velocity - v_m) / r_m
-        rows[k, 1, :3] -= (np.eye(3) - np.outer(u_f, u_f)) @ velocity / r_f
+        rows[k, 1, :3] = (np.eye(3) - np.outer(u_m, u_m)) @ (velocity[k] - v_m) / r_m
+        rows[k, 1, :3] -= (np.eye(3) - np.outer(u_f, u_f)) @ velocity[k] / r_f
     return rows
 
 
-def test_the_cramer_rao_bound_is_the_closed_form_fisher_information_of_a_cv_track():
+def _cv_track(position, velocity, times, z_max):
+    """A CV source's positions and velocities (K, 6) at ``times`` (K,; s), turned back specularly at ``z_max`` (m), and
+    their derivatives (K, 6, 6) in its [p_0, v_0]: past the bounce z = 2 z_max - (z_0 + v_z t), v_z the opposite."""
+    track = np.concatenate([position + times[:, None] * velocity, np.broadcast_to(velocity, (len(times), 3))], axis=1)
+    derivative = np.zeros((len(times), 6, 6))
+    derivative[:, :3, :3] = derivative[:, 3:, 3:] = np.eye(3)
+    derivative[:, :3, 3:] = times[:, None, None] * np.eye(3)
+    bounced = track[:, 2] > z_max
+    track[bounced, 2] = 2 * z_max - track[bounced, 2]
+    track[bounced, 5] *= -1
+    derivative[bounced, 2] *= -1
+    derivative[bounced, 5] *= -1
+    return track, derivative
+
+
+@pytest.mark.parametrize("seed", [4, 29])  # 29: a bounce off the surface margin at 12.95 s
+def test_the_cramer_rao_bound_is_the_closed_form_fisher_information_of_a_cv_track(seed):
     """``crb_bound.episode_covariance`` (finite differences of simulated tracks, point 1's bound) against the Fisher
-    information written out from the direct path's closed-form gradients for a CV source that keeps its line: the
-    prior, the two biases, R_eff and the position's covariance at every step, on the initializer study's world."""
+    information written out from the direct path's closed-form gradients for a CV source that keeps its line or
+    bounces off the surface margin: the prior, the two biases, R_eff and the position's covariance at every step, on
+    the initializer study's world."""
     config = load_config(ROOT / "configs/initializer_study.yaml").replace(episode={"duration": 30.0})
     env = bound_env(config, "cv", "helix")
-    covariance = episode_covariance(env, seed=4)
-    env.reset(seed=4)
+    covariance = episode_covariance(env, seed=seed)
+    env.reset(seed=seed)
     source, dt = env.source, env.dt
-    mobile, mobile_velocity = [], []
+    receiver, truth = [], []
     for _ in range(env.max_steps):
         env.step(np.zeros(3))
-        mobile.append(env.receiver_position.copy())
-        mobile_velocity.append(env.receiver_velocity.copy())
+        receiver.append(np.concatenate([env.receiver_position, env.receiver_velocity]))
+        truth.append(np.concatenate([env.source.position, env.source.velocity]))
     times = dt * np.arange(1, env.max_steps + 1)
-    track = source.position + times[:, None] * source.velocity
-    # No bounce: the source kept its line (a reflection would have turned its velocity too).
-    assert np.allclose(env.source.position, track[-1]) and np.array_equal(env.source.velocity, source.velocity)
-    rows = _direct_path_rows(track, source.velocity, np.array(mobile), np.array(mobile_velocity), env.fixed)
+    track, derivative = _cv_track(source.position, source.velocity, times, env.motion_region.z_max)
+    assert np.allclose(track, truth) and (np.any(track[:, 5] != source.velocity[2]) == (seed == 29))
+    receiver = np.array(receiver)
+    rows = _direct_path_rows(track[:, :3], track[:, 3:], receiver[:, :3], receiver[:, 3:], env.fixed)
     jacobian = np.zeros((len(times), 2, 8))  # d z_k / d [p_0, v_0, b_p, b_v]
-    jacobian[:, :, :3] = rows[:, :, :3]
-    jacobian[:, :, 3:6] = rows[:, :, :3] * times[:, None, None] + rows[:, :, 3:]
+    jacobian[:, :, :6] = rows @ derivative
     jacobian[:, 0, 6] = jacobian[:, 1, 7] = 1.0
-    measurement, receiver, prior = config.measurement, config.receiver, config.initializer
-    noise = np.diag([measurement.range_difference_sd**2 + receiver.nav_position_sd**2,
-                     measurement.range_rate_difference_sd**2 + receiver.velocity_sd**2])  # fmt: skip
+    measurement, navigation, prior = config.measurement, config.receiver, config.initializer
+    noise = np.diag([measurement.range_difference_sd**2 + navigation.nav_position_sd**2,
+                     measurement.range_rate_difference_sd**2 + navigation.velocity_sd**2])  # fmt: skip
     prior_sd = [prior.position_sd] * 3 + [prior.velocity_prior_sd] * 3 + [prior.range_bias_sd, prior.rate_bias_sd]
     information = np.diag(np.array(prior_sd) ** -2.0) + np.cumsum(
         np.swapaxes(jacobian, 1, 2) @ np.linalg.inv(noise) @ jacobian, axis=0
     )
     position = np.zeros((len(times), 3, 8))  # d p(t_k) / d [p_0, v_0, b_p, b_v]
-    position[:, :, :3] = np.eye(3)
-    position[:, :, 3:6] = times[:, None, None] * np.eye(3)
+    position[:, :, :6] = derivative[:, :3]
     expected = position @ np.linalg.inv(information) @ np.swapaxes(position, 1, 2)
     assert np.allclose(covariance, expected, rtol=1e-5, atol=1e-12)
     assert np.sqrt(np.trace(covariance[-1])) < 0.5 * np.sqrt(np.trace(covariance[10]))  # the track tells
