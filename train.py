@@ -3,12 +3,13 @@
     python train.py --algo ppo [--env ID] [--scenario NAME] [--config FILE] [--timesteps N] [--n-envs K]
                            [--seed S] [--out DIR]
 
-Writes DIR/model.zip (with DIR/model.vecnormalize.pkl when the schedule normalizes observations or
-rewards), DIR/config.yaml (the exact env config), DIR/hyperparameters.yaml, checkpoints under
-DIR/checkpoints/, the best model of the periodic evaluations under DIR/best/, their learning curve in
+Writes DIR/config.yaml (the exact env config) and DIR/hyperparameters.yaml before training starts, then
+DIR/model.zip (with DIR/model.vecnormalize.pkl when the schedule normalizes observations or rewards), checkpoints
+under DIR/checkpoints/, the best model of the periodic evaluations under DIR/best/, their learning curve in
 DIR/evaluations.csv, and SB3's records as training goes (losses, the training episodes' metrics) in
 DIR/progress.csv and, when TensorBoard is installed, under DIR/tb/ (a folder per run, as SB3 numbers them). Every
-file but those running logs is written atomically; a run into a DIR used before replaces its files. The periodic
+file but those running logs is written atomically (SB3 rewrites progress.csv whole when a column first appears, so a
+run killed at that moment can lose it); a run into a DIR used before replaces its files. The periodic
 evaluation runs the same seeds each time (``schedule.eval_seed`` onward), which training never uses: training
 env i starts from seed S + i and every later episode continues that env's generator.
 """
@@ -74,6 +75,10 @@ def main(argv=None) -> int:
         return 2
     out = args.out or ROOT / "runs" / f"{args.algo}-{args.seed}"
     out.mkdir(parents=True, exist_ok=True)
+    # Before training: a run stopped part-way leaves its checkpoints beside the config they were trained with.
+    save_config(config, out / "config.yaml")
+    record = training_record(args.algo, args.seed, schedule, run, hyperparameters)
+    atomic_write_text(out / "hyperparameters.yaml", yaml.safe_dump(record))
 
     from agents.sb3 import train  # Stable-Baselines3 and torch: only once the input is known to be good
 
@@ -84,9 +89,6 @@ def main(argv=None) -> int:
     except ConfigError as exc:
         print(f"error: --hyperparameters: {exc}", file=sys.stderr)
         return 2
-    save_config(config, out / "config.yaml")
-    record = training_record(args.algo, args.seed, schedule, run, hyperparameters)
-    atomic_write_text(out / "hyperparameters.yaml", yaml.safe_dump(record))
     beside = "facility" if run.env == FACILITY_ID else "helix"  # the baseline: the facility's own patrol, or the helix
     print(
         f"saved {model_path} (evaluate with: python evaluate.py --config {out / 'config.yaml'} "

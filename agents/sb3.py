@@ -2,7 +2,9 @@
 
 A saved policy is ``NAME.zip`` (the SB3 model) and, when training normalized observations or rewards,
 ``NAME.vecnormalize.pkl`` beside it (the running statistics); :func:`load_model` picks both up, so a
-loaded policy sees observations exactly as it did in training. Both are written atomically. The model
+loaded policy sees observations exactly as it did in training. Both are written atomically, and the model
+records the SHA-256 of the statistics saved with it (``aasl_statistics``; None without), so that a load refuses
+another save's (a crash between the two writes, or a later run into the same folder). The model
 also carries the id of the env it was trained on (``aasl_env_id``; SB3 saves a model's attributes with
 it), because a policy trained on ``AASL-Greedy-v0`` outputs a residual on the planner's command and
 must be run in that env: :attr:`LoadedPolicy.env_id` tells the evaluation which.
@@ -13,6 +15,7 @@ must be run in that env: :attr:`LoadedPolicy.env_id` tells the evaluation which.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import logging
 import pickle
@@ -59,13 +62,48 @@ def statistics_path(model_path: str | Path) -> Path:
 
 
 def save_model(model, path: str | Path) -> Path:
-    """Save ``model`` to ``path`` (a .zip) and its VecNormalize statistics beside it, each atomically."""
+    """Save ``model`` to ``path`` (a .zip) and its VecNormalize statistics beside it, each atomically, the model
+    with their digest; a model without statistics removes an earlier save's from beside it."""
     path = Path(path)
-    atomic_write(path, lambda tmp: model.save(tmp))
     normalizer = model.get_vec_normalize_env()
-    if normalizer is not None:
-        atomic_write(statistics_path(path), lambda tmp: normalizer.save(tmp))
+    statistics = None if normalizer is None else pickle.dumps(normalizer)  # what VecNormalize.save writes
+    model.aasl_statistics = None if statistics is None else hashlib.sha256(statistics).hexdigest()
+    if statistics is None:
+        statistics_path(path).unlink(missing_ok=True)
+    else:
+        atomic_write(statistics_path(path), lambda tmp: Path(tmp).write_bytes(statistics))
+    atomic_write(path, lambda tmp: model.save(tmp))
     return path
+
+
+_NOT_RECORDED = object()  # a model saved before the statistics' digest (models/ppo_default.zip)
+
+
+def _load_statistics(spec: str, model, stats: Path):
+    """The VecNormalize statistics saved with ``model`` (from ``stats``), or None. A model that records their digest
+    takes only those; one saved before the digest, whatever file lies beside it."""
+    recorded = getattr(model, "aasl_statistics", _NOT_RECORDED)
+    if recorded is None:
+        if stats.is_file():
+            logger.warning("model %s was saved without statistics: %s beside it is ignored", spec, stats)
+        return None
+    if not stats.is_file():
+        if recorded is _NOT_RECORDED:
+            return None
+        raise FileNotFoundError(f"model {spec!r}: its statistics {stats} are missing (the model was saved with them)")
+    data = stats.read_bytes()
+    if recorded is not _NOT_RECORDED and hashlib.sha256(data).hexdigest() != recorded:
+        raise ValueError(f"model {spec!r}: {stats} holds another save's statistics, not the model's own")
+    try:
+        normalizer = pickle.loads(data)
+    except Exception as exc:
+        raise ValueError(
+            f"model {spec!r}: its statistics {stats} could not be loaded ({type(exc).__name__}: {exc})"
+        ) from exc
+    if not hasattr(normalizer, "normalize_obs"):
+        raise ValueError(f"model {spec!r}: {stats} holds no VecNormalize statistics")
+    normalizer.training = False
+    return normalizer
 
 
 class LoadedPolicy:
@@ -99,22 +137,10 @@ def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
         model = cls.load(file, device=device)
     except Exception as exc:  # SB3 raises many kinds on a damaged archive
         raise ValueError(f"model {spec!r}: {file} could not be loaded ({type(exc).__name__}: {exc})") from exc
-    stats = statistics_path(file)
-    normalizer = None
-    if stats.is_file():
-        try:
-            with open(stats, "rb") as handle:
-                normalizer = pickle.load(handle)
-        except Exception as exc:
-            raise ValueError(
-                f"model {spec!r}: its statistics {stats} could not be loaded ({type(exc).__name__}: {exc})"
-            ) from exc
-        if not hasattr(normalizer, "normalize_obs"):
-            raise ValueError(f"model {spec!r}: {stats} holds no VecNormalize statistics")
-        normalizer.training = False
-    policy = LoadedPolicy(model, normalizer)
+    policy = LoadedPolicy(model)
     if policy.env_id not in ALL_IDS:
         raise ValueError(f"model {spec!r}: trained on env {policy.env_id!r}, which is not one of {sorted(ALL_IDS)}")
+    policy.normalizer = _load_statistics(spec, model, statistics_path(file))
     return policy
 
 

@@ -17,6 +17,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from aasl_gym.scenarios import command_line_config
 from crb_bound import as_few_chance, bound_env, efficient_count_range, efficient_success, episode_covariance
@@ -60,7 +61,7 @@ def main() -> None:
     first_seeds = [int(SETS[name].split("-")[0]) for name in names]
     with ProcessPoolExecutor(args.workers) as pool:
         per_set = pool.map(set_chances, first_seeds, episodes, [args.motion] * len(names))
-        chances = [chance for chunk in per_set for chance in chunk]
+        chances = [chance for chunk in tqdm(per_set, total=len(names), unit="set", leave=False) for chance in chunk]
     low, high = efficient_count_range(chances)
     count = len(chances)
     print(f"{args.motion}: {len(names)} sets, {count} episodes ({', '.join(str(s) for s in first_seeds)})")

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # agents/ lives at the repository root
@@ -52,11 +53,8 @@ def main() -> None:
     args = parser.parse_args()
     columns = {}
     for policy in args.policies:
-        episodes = [
-            episode_sums(policy, motion, seed)
-            for motion in MOTIONS
-            for seed in range(args.seed, args.seed + args.seeds)
-        ]
+        jobs = [(motion, seed) for motion in MOTIONS for seed in range(args.seed, args.seed + args.seeds)]
+        episodes = [episode_sums(policy, *job) for job in tqdm(jobs, desc=policy, unit="ep", leave=False)]
         columns[policy] = {name: np.array([e[name] for e in episodes]) for name in TERMS}
         print(f"{policy}: {len(episodes)} episodes", file=sys.stderr)
     print("| term | " + " | ".join(args.policies) + " |")

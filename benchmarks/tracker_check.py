@@ -19,6 +19,7 @@ import time
 from multiprocessing import Pool
 
 import numpy as np
+from tqdm import tqdm
 
 from aasl_gym.patrols import REFERENCES
 from aasl_gym.registration import ENV_IDS
@@ -101,7 +102,7 @@ def main() -> None:
     overrides = parse_overrides(args.set)
     jobs = [(*job, overrides, args.patrol) for job in parse_runs(args.runs)]
     with Pool(2) as pool:
-        rows = pool.map(episode, jobs, chunksize=1)
+        rows = list(tqdm(pool.imap(episode, jobs, chunksize=1), total=len(jobs), unit="ep", leave=False))
     for world in WORLDS:
         for motion in MATCHED:
             group = [row for row in rows if row["world"] == world and row["motion"] == motion]

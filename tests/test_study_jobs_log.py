@@ -67,6 +67,29 @@ def test_the_log_reads_back_what_was_appended_and_skips_a_torn_line(tmp_path):
     assert log.read() == {keys[0]: {"seed": 1}}
 
 
+def test_a_resumed_log_keeps_the_rows_appended_after_a_torn_or_unfinished_line(tmp_path):
+    """Resuming cuts a torn last line off before appending, and ends a whole last line that lost its newline, so
+    that the episode run again and the next ones read back (they were glued onto the fragment and lost)."""
+    log = EpisodeLog(tmp_path / "episodes.jsonl", to_dict(EnvConfig()))
+    log.start()
+    keys = [("helix", "lcmap", "cv", "signal", seed, None) for seed in (1, 2, 3, 4)]
+    with log.appending() as append:
+        for key in keys[:2]:
+            append(key, {"seed": key[4]})
+    text = log.path.read_text()
+    for cut in (10, 1):  # torn mid-row, then a whole row without its newline
+        log.path.write_text(text[: len(text) - cut])
+        done = log.open(resume=True)
+        assert set(done) == ({keys[0]} if cut == 10 else set(keys[:2]))
+        with log.appending() as append:
+            for key in keys:
+                if key not in done:
+                    append(key, {"seed": key[4]})
+        assert log.read() == {key: {"seed": key[4]} for key in keys}
+        assert log.path.read_text().count("\n") == 5  # the config and four rows, one a line
+        log.path.write_text(text)
+
+
 def test_the_log_refuses_another_config_or_no_header(tmp_path):
     path = tmp_path / "episodes.jsonl"
     EpisodeLog(path, to_dict(EnvConfig())).start()

@@ -2,6 +2,7 @@
 
 import itertools
 import os
+import pickle
 import re
 import tempfile
 from pathlib import Path
@@ -13,7 +14,7 @@ import yaml
 import evaluate
 import train
 from aasl_gym.config import to_dict
-from agents.sb3 import load_model, statistics_path
+from agents.sb3 import load_model, save_model, statistics_path
 
 TINY_SCHEDULE = {
     "schedule": {
@@ -156,17 +157,38 @@ def test_a_facility_trains_on_its_own_env_and_is_evaluated_there(tiny, tmp_path,
     assert lines["facility"].split(" | ")[2:4] == [str(len(patrol)), f"{heard:.0%}"]
 
 
-def test_missing_statistics_file_is_fine_and_a_corrupt_one_is_named(tiny, tmp_path):
+def test_a_model_takes_only_the_statistics_saved_with_it(tiny, tmp_path):
+    """The model records its statistics' digest: a corrupt, another save's or a missing file is named; a model saved
+    without statistics removes an earlier save's and ignores one put beside it; one saved before the digest takes
+    whatever lies beside it, as it always did."""
     config, hyper = tiny
     out = tmp_path / "run"
     assert (
         train.main(["--algo", "ppo", "--config", str(config), "--hyperparameters", str(hyper), "--out", str(out)]) == 0
     )
-    statistics_path(out / "model.zip").write_bytes(b"not a pickle")
-    with pytest.raises(ValueError, match="statistics"):
-        load_model(f"ppo:{out / 'model.zip'}")
-    statistics_path(out / "model.zip").unlink()
-    assert load_model(f"ppo:{out / 'model.zip'}").normalizer is None
+    model, statistics = out / "model.zip", statistics_path(out / "model.zip")
+    policy = load_model(f"ppo:{model}")
+    assert policy.normalizer is not None and policy.model.aasl_statistics is not None
+    saved = statistics.read_bytes()
+    earlier = statistics_path(out / "checkpoints" / "ppo_128.zip").read_bytes()  # the statistics at step 128
+    assert pickle.loads(earlier).obs_rms.count < pickle.loads(saved).obs_rms.count
+    for data in (b"not a pickle", earlier):
+        statistics.write_bytes(data)
+        with pytest.raises(ValueError, match="another save's statistics"):
+            load_model(f"ppo:{model}")
+    statistics.unlink()
+    with pytest.raises(FileNotFoundError, match=r"statistics .* are missing"):
+        load_model(f"ppo:{model}")
+    statistics.write_bytes(saved)
+    bare = policy.model
+    bare.get_vec_normalize_env = lambda: None  # a run without normalization, into the same folder
+    save_model(bare, model)
+    assert not statistics.exists()
+    statistics.write_bytes(saved)
+    assert load_model(f"ppo:{model}").normalizer is None
+    del bare.aasl_statistics  # as a model saved before the digest
+    bare.save(model)
+    assert load_model(f"ppo:{model}").normalizer is not None
 
 
 def test_training_episodes_log_their_metrics(tmp_path):
@@ -215,7 +237,7 @@ def test_a_residual_model_is_evaluated_in_the_env_it_was_trained_on(tiny, tmp_pa
     with torch.no_grad():
         policy.model.policy.action_net.weight.zero_()
         policy.model.policy.action_net.bias.zero_()
-    policy.model.save(out / "zero.zip")
+    save_model(policy.model, out / "zero.zip")  # loaded, without its env: saved without statistics
     assert load_model(f"ppo:{out / 'zero.zip'}").env_id == "AASL-Greedy-v0"
     policy.model.aasl_env_id = "AASL-v9"
     policy.model.save(out / "unknown.zip")

@@ -79,9 +79,27 @@ class EpisodeLog:
     def open(self, resume: bool) -> dict[tuple, Row]:
         """The rows to reuse: with ``resume`` those of :meth:`read`; without (or with none), a new log."""
         done = self.read() if resume else {}
-        if not done:
+        if done:
+            self._mend_tail()
+        else:
             self.start()
         return done
+
+    def _mend_tail(self) -> None:
+        """Ready a kept log for appending: a torn last line (:meth:`read` skipped it) is cut off, and a whole last
+        line without its newline gets one; else the next row would be written onto it and both lost."""
+        data = self.path.read_bytes()
+        if data.endswith(b"\n"):
+            return
+        start = data.rfind(b"\n") + 1
+        try:
+            json.loads(data[start:])
+        except ValueError:
+            with open(self.path, "r+b") as handle:
+                handle.truncate(start)
+            return
+        with open(self.path, "ab") as handle:
+            handle.write(b"\n")
 
     def start(self) -> None:
         """A new log holding only the config line (replacing any earlier one)."""
