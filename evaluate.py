@@ -92,6 +92,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0 (Gymnasium's seeds), got {args.seed}")
     if args.trajectories < 0:
         parser.error(f"--trajectories must be >= 0, got {args.trajectories}")
     check_backend_arguments(parser, args)

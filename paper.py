@@ -81,7 +81,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     add("--no-plots", action="store_true")
     add("--resume", action="store_true", help="reuse the trials already in OUT/episodes.jsonl")
     args = parser.parse_args(argv)
-    for name, low in (("trials", 1), ("grid", 2), ("samples", 100)):
+    for name, low in (("trials", 1), ("grid", 2), ("samples", 100), ("seed", 0)):
         value = getattr(args, name)
         if value is not None and value < low:
             parser.error(f"--{name} must be >= {low}, got {value}")

@@ -51,6 +51,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error(f"--timesteps must be >= 1, got {args.timesteps}")
     if args.n_envs is not None and args.n_envs < 1:
         parser.error(f"--n-envs must be >= 1, got {args.n_envs}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0 (Gymnasium's seeds), got {args.seed}")
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out {args.out}: a file is there; give a folder for the run")
     return args
 
 

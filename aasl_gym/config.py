@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import types
 import typing
 from collections.abc import Mapping
@@ -21,6 +22,7 @@ import yaml
 
 from aasl_gym.facility import loop_radius, pod_hydrophones
 from aasl_gym.io import read_yaml
+from aasl_gym.synthesis import receiver_band
 
 SOURCE_MOTIONS = ("static", "cv", "ca", "ctrv", "uturn", "mixed")
 MEASUREMENT_MODES = ("signal", "geometric")
@@ -617,10 +619,25 @@ class EnvConfig:
             f"{self.world.reflection_model!r} generates geometric measurements only (the signal front end hears "
             "the exact phasor sum): set measurement.mode to geometric or world.reflection_model to phasor",
         )
+        self._check_sampling()
         require(
             self.fault.kind in ("none", "dropped") or self.measurement.mode == "signal",
             "fault.kind",
             f"{self.fault.kind!r} corrupts a synthesized frame: it needs measurement.mode signal",
+        )
+
+    def _check_sampling(self) -> None:
+        """On the hardware path (real samples at ``signal.sample_rate``) the receiver band lies below the Nyquist
+        frequency; else the tone folds over and no frame is heard: the env would run, deaf, without a word."""
+        if self.measurement.mode != "signal" or self.signal.path != "hardware":
+            return
+        kind, frequency = self.source.waveform, self.source.frequency
+        low, high = receiver_band(kind, frequency)
+        require(
+            high < self.signal.sample_rate / 2,
+            "signal.sample_rate",
+            f"samples up to {self.signal.sample_rate / 2:g} Hz (its Nyquist frequency): too little for the receiver "
+            f"band {low:g}-{high:g} Hz (source.waveform {kind}, source.frequency {frequency:g} Hz)",
         )
 
     def _check_source_depth(self) -> None:
@@ -772,13 +789,14 @@ def _coerce(value: Any, annotation: Any, path: str) -> Any:
     if annotation is bool:
         require(isinstance(value, bool), path, f"must be true or false, got {value!r}")
         return value
+    # NumPy's scalars count (a dict built with NumPy's help holds them); True and False do not.
     if annotation is int:
-        require(isinstance(value, int) and not isinstance(value, bool), path, f"must be an integer, got {value!r}")
-        return value
+        integral = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+        require(integral, path, f"must be an integer, got {value!r}")
+        return int(value)
     if annotation is float:
-        require(
-            isinstance(value, (int, float)) and not isinstance(value, bool), path, f"must be a number, got {value!r}"
-        )
+        real = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        require(real, path, f"must be a number, got {value!r}")
         return float(value)
     if annotation is str:
         require(isinstance(value, str), path, f"must be a string, got {value!r}")
@@ -820,10 +838,10 @@ def read_config_file(
     (the fields it changes, e.g. a scenario's) or over the defaults; errors name the file and the key."""
     path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"config file {str(path)!r} does not exist")
+        raise ConfigError(f"config file {str(path)!r} " + ("is a folder" if path.is_dir() else "does not exist"))
     try:
         data = read_yaml(path.read_text())
-    except yaml.YAMLError as exc:
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
     data = {} if data is None else data
     require(isinstance(data, Mapping), str(path), f"must be a mapping of config sections, got {type(data).__name__}")

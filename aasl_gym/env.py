@@ -31,6 +31,7 @@ from aasl_gym.motion import (
 from aasl_gym.observation import OBSERVATION_BOUND, OBSERVATION_SIZE, Observation, encode_observation
 from aasl_gym.patrols import PatrolGeometry, patrol_command
 from aasl_gym.planning import GreedyPlanner
+from aasl_gym.registration import ENV_IDS, FACILITY_ID, check_env_fits
 from aasl_gym.scenarios import scenario_fields
 from aasl_gym.sensors import make_sensor, received
 
@@ -221,6 +222,7 @@ class AASLEnv(gym.Env):
             raise ConfigError(f"render_mode={render_mode!r}: allowed values are {allowed} or None")
         self.patrol = patrol
         self.render_mode = render_mode
+        self._check_pods()
         cfg = self.config
         self.dt = cfg.dt
         self.max_steps = cfg.max_steps
@@ -301,6 +303,12 @@ class AASLEnv(gym.Env):
             )
         return command
 
+    def _check_pods(self) -> None:
+        """This env flies one pod: a config with a facility of several (``facility.pods``) is refused by name, where the
+        env would ignore all but the first (:class:`~aasl_gym.facility_env.FacilityEnv` flies them)."""
+        env_id = next(env_id for env_id, patrol in ENV_IDS.items() if patrol == self.patrol)
+        check_env_fits(env_id, self.config, "config", remedy=f" (gym.make({FACILITY_ID!r}, ...))")
+
     def step(self, action):
         action = self._checked_action(action)
         hit = self._move(action)
@@ -325,10 +333,13 @@ class AASLEnv(gym.Env):
 
     @staticmethod
     def _checked_action(action) -> np.ndarray:
-        """The action as a (3,) float array, clipped to the box; a wrong shape or a non-finite entry raises."""
-        action = np.asarray(action, dtype=float).reshape(-1)
+        """The action as a (3,) float array, clipped to the box; a wrong shape or type or a non-finite entry raises."""
+        action = np.asarray(action)
         if action.shape != (3,):
             raise ValueError(f"action must have shape (3,), got {action.shape}")
+        if action.dtype.kind not in "iuf":
+            raise ValueError(f"action must be three real numbers, got {action.dtype} values {action.tolist()}")
+        action = action.astype(float)
         if not np.isfinite(action).all():
             raise ValueError(f"action must be finite, got {action.tolist()}")
         return np.clip(action, -1.0, 1.0)

@@ -40,6 +40,7 @@ from aasl_gym.facility import loop_radius, pod_hydrophones
 from aasl_gym.measurement_models import received_snr
 from aasl_gym.motion import SourceState, sample_source, source_region
 from aasl_gym.patrols import PatrolGeometry, patrol_command
+from aasl_gym.registration import FACILITY_ID, check_env_fits
 
 
 def hydrophone_snr_db(config: EnvConfig, source: np.ndarray, hydrophones: np.ndarray) -> np.ndarray:
@@ -68,6 +69,10 @@ class FacilityEnv(AASLEnv):
         self.loop_geometry = PatrolGeometry(centre, np.asarray(cfg.receiver.start_position, dtype=float))
         self.unpaired_tracker = self.tracker  # the config's: its prior about the facility, until a pod hears
         self.source_pod, self.onset, self.pod, self.detection_time = 0, 0.0, -1, math.inf
+
+    def _check_pods(self) -> None:
+        """A facility of several pods (``facility.pods`` > 1), refused by name otherwise."""
+        check_env_fits(FACILITY_ID, self.config, "config")
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         # Unpaired again before the base class resets the tracker and its prior's information.

@@ -8,7 +8,7 @@ import os
 import re
 import secrets
 import stat
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +61,22 @@ def atomic_write_json(path: str | Path, data: Any) -> Path:
 
 class _Loader(yaml.SafeLoader):
     """PyYAML's safe loader, which follows YAML 1.1 and so reads ``1e-7`` or ``3e-4`` (no dot, or no sign in the
-    exponent) as strings; YAML 1.2 takes them for numbers, and so does this loader."""
+    exponent) as strings; YAML 1.2 takes them for numbers, and so does this loader. A key given twice in one mapping
+    is an error (PyYAML keeps the last and drops the first's values without a word)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue  # '<<' merges, which an own key may override
+                key = self.construct_object(key_node, deep=deep)
+                if isinstance(key, Hashable) and key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        "while constructing a mapping", node.start_mark, f"found key {key!r} twice", key_node.start_mark
+                    )
+                seen.add(key)
+        return super().construct_mapping(node, deep=deep)
 
 
 _Loader.add_implicit_resolver(

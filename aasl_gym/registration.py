@@ -40,7 +40,7 @@ def check_env_fits(env_id: str, config: EnvConfig, option: str, remedy: str = ""
     pods = config.facility.pods
     if env_id == FACILITY_ID and pods == 1:
         raise ConfigError(
-            f"{option}: {FACILITY_ID} needs a facility (facility.pods > 1, e.g. --scenario facility); "
+            f"{option}: {FACILITY_ID} needs a facility (facility.pods > 1, e.g. the scenario 'facility'); "
             "this config has one pod"
         )
     if env_id != FACILITY_ID and pods > 1:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger, make_output_format
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.utils import get_latest_run_id
 
 from aasl_gym.config import ConfigError, EnvConfig
@@ -134,9 +135,14 @@ def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
     if not zipfile.is_zipfile(file):
         raise ValueError(f"model {spec!r}: {file} is not a Stable-Baselines3 model (not a zip archive)")
     try:
-        model = cls.load(file, device=device)
+        data, _, _ = load_from_zip_file(file, device="cpu")
+        trained_with = (data or {}).get("aasl_algorithm")  # None for a model saved before it was recorded
+        if trained_with is None or trained_with == algo:
+            model = cls.load(file, device=device)
     except Exception as exc:  # SB3 raises many kinds on a damaged archive
         raise ValueError(f"model {spec!r}: {file} could not be loaded ({type(exc).__name__}: {exc})") from exc
+    if trained_with not in (None, algo):
+        raise ValueError(f"model {spec!r}: {file} was trained with {trained_with}: load it as {trained_with}:{path}")
     policy = LoadedPolicy(model)
     if policy.env_id not in ALL_IDS:
         raise ValueError(f"model {spec!r}: trained on env {policy.env_id!r}, which is not one of {sorted(ALL_IDS)}")
@@ -293,7 +299,7 @@ def train(
     """Train ``algo`` on ``schedule.env`` with ``config`` and save ``out/model.zip`` (with its normalization
     statistics), besides the checkpoints, best model and learning curve of :func:`make_callbacks`; returns
     the model's path. ``report`` receives the opening line and one per evaluation. Raises
-    :class:`~aasl_gym.config.ConfigError` for a keyword the algorithm does not take."""
+    :class:`~aasl_gym.config.ConfigError` for a keyword the algorithm does not take or a value it refuses."""
     import gymnasium as gym
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import SubprocVecEnv, VecNormalize
@@ -324,8 +330,14 @@ def train(
                 **hyperparameters,
             )
         except TypeError as exc:
-            raise ConfigError(f"section '{algo}' has a keyword {cls.__name__} does not take ({exc})") from exc
-        model.aasl_env_id = schedule.env  # saved with every checkpoint, so evaluation runs the policy in its env
+            unknown = "unexpected keyword" in str(exc)
+            what = f"a keyword {cls.__name__} does not take" if unknown else f"a value {cls.__name__} cannot use"
+            raise ConfigError(f"section '{algo}' has {what} ({exc})") from exc
+        except (AssertionError, ValueError) as exc:  # SB3's and torch's own checks of the values
+            refused = f"{cls.__name__} refused a value ({type(exc).__name__}: {exc})"
+            raise ConfigError(f"section '{algo}': {refused}") from exc
+        # Saved with every checkpoint: evaluation runs the policy in its env, and a load names the algorithm.
+        model.aasl_env_id, model.aasl_algorithm = schedule.env, algo
         callbacks = make_callbacks(
             out,
             algo,

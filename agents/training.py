@@ -81,7 +81,7 @@ def load_training(path: str | Path, algo: str) -> tuple[Schedule, dict[str, Any]
         raise ConfigError(f"no file at {path}")
     try:
         data = read_yaml(path.read_text())
-    except yaml.YAMLError as exc:
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path} is not valid YAML ({exc})") from exc
     if not isinstance(data, dict) or "schedule" not in data or algo not in data:
         raise ConfigError(f"{path} needs a 'schedule' section and a '{algo}' section")

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pytest
 import yaml
 
@@ -132,6 +133,42 @@ def test_bad_yaml_file_names_the_file(tmp_path):
         load_config(wrong)
     with pytest.raises(ConfigError, match="does not exist"):
         load_config(tmp_path / "missing.yaml")
+    with pytest.raises(ConfigError, match="is a folder"):
+        load_config(tmp_path)
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(bytes(range(128, 256)))
+    with pytest.raises(ConfigError, match=r"binary\.yaml: not valid YAML \('utf-8' codec"):
+        load_config(binary)
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("world:\n  water_depth: 40.0\nsource:\n  frequency: 900.0\nworld:\n  reflections: false\n")
+    with pytest.raises(ConfigError, match=r"(?s)twice\.yaml: not valid YAML .*found key 'world' twice"):
+        load_config(twice)  # PyYAML alone keeps the second and drops the water depth without a word
+
+
+def test_a_hardware_path_that_cannot_sample_the_tone_is_refused():
+    """Real samples at 200 kHz hold tones below 100 kHz: a 150 kHz tone would fold over and never be heard."""
+    hardware = {"measurement": {"mode": "signal"}, "signal": {"path": "hardware"}}
+    with pytest.raises(ConfigError, match=r"signal\.sample_rate: samples up to 100000 Hz .* 135000-165000 Hz"):
+        from_dict({**hardware, "source": {"frequency": 150_000.0}})
+    assert from_dict({**hardware, "source": {"frequency": 80_000.0}}).source.frequency == 80_000.0
+    assert from_dict({"source": {"frequency": 150_000.0}}).signal.path == "fast"  # the envelope is taken at the tone
+
+
+def test_numpy_scalars_are_numbers_and_bools_are_not():
+    config = from_dict({"signal": {"windows": np.int64(12)}, "episode": {"duration": np.float32(30.0)}})
+    assert config.signal.windows == 12 and type(config.signal.windows) is int
+    assert config.episode.duration == 30.0 and type(config.episode.duration) is float
+    with pytest.raises(ConfigError, match=r"signal\.windows: must be an integer, got True"):
+        from_dict({"signal": {"windows": True}})
+
+
+def test_gym_make_refuses_a_facility_it_would_not_fly():
+    """An id that flies one pod refuses a config with several, and the facility's id one with a single pod, by name
+    (as the CLIs do), where they would have run and dropped the other pods without a word."""
+    with pytest.raises(ConfigError, match=r"config: AASL-Helix-v0 flies one pod .* facility of 8 pods"):
+        gym.make("AASL-Helix-v0", scenario="facility")
+    with pytest.raises(ConfigError, match="config: AASL-Facility-v0 needs a facility"):
+        gym.make("AASL-Facility-v0", scenario=None)
 
 
 OVERRIDES = [

@@ -167,6 +167,15 @@ def test_actions_nonfinite_rejected_and_out_of_box_clipped():
     env.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
         env.step(np.array([np.nan, 0, 0]))
+    for action, message in (
+        (np.zeros((1, 3)), r"shape \(3,\), got \(1, 3\)"),  # not flattened: a batch of one is a caller's mistake
+        (None, r"shape \(3,\), got \(\)"),
+        (["a", "b", "c"], "three real numbers, got <U1"),
+        (np.zeros(3, complex), "three real numbers, got complex128"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            env.step(action)
+    env.step(np.zeros(3, int))  # integers are numbers
     a = gym.make("AASL-v0")
     b = gym.make("AASL-v0")
     a.reset(seed=4)

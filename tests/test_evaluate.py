@@ -158,6 +158,9 @@ def test_bad_flags_are_named(capsys, tmp_path):
         evaluate.main(["--episodes", "0"])
     assert "--episodes" in capsys.readouterr().err
     with pytest.raises(SystemExit):
+        evaluate.main(["--seed", "-5"])
+    assert "--seed must be >= 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
         evaluate.main(["--ray-address", "auto"])
     assert "--ray-address needs --backend ray" in capsys.readouterr().err
     assert evaluate.main(["--config", str(tmp_path / "missing.yaml"), "--out", str(tmp_path)]) == 2

@@ -178,6 +178,9 @@ def test_bad_flags_are_named(tmp_path, capsys):
         paper.main(["coefficients", "--grid", "1"])
     assert "--grid must be >= 2" in capsys.readouterr().err
     with pytest.raises(SystemExit):
+        paper.main(["multipath", "--seed", "-1"])
+    assert "--seed must be >= 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
         paper.main(["ablation"])
     assert "ablation" in capsys.readouterr().err
     bad = tmp_path / "bad.yaml"

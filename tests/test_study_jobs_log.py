@@ -65,6 +65,9 @@ def test_the_log_reads_back_what_was_appended_and_skips_a_torn_line(tmp_path):
     text = log.path.read_text()
     log.path.write_text(text[: len(text) - 10])  # killed while writing the second episode
     assert log.read() == {keys[0]: {"seed": 1}}
+    log.path.write_bytes(bytes(range(128, 256)))
+    with pytest.raises(LogMismatch, match="is not a text log"):
+        log.read()
 
 
 def test_a_resumed_log_keeps_the_rows_appended_after_a_torn_or_unfinished_line(tmp_path):

@@ -109,6 +109,18 @@ def test_bad_training_input_is_named(tiny, tmp_path, capsys):
     wrong.write_text(yaml.safe_dump({**TINY_SCHEDULE, "ppo": {"n_stepz": 64}}))
     assert train.main(["--config", str(config), "--hyperparameters", str(wrong), "--out", str(tmp_path)]) == 2
     assert "n_stepz" in capsys.readouterr().err
+    for values, message in (
+        ({"learning_rate": "fast"}, "section 'ppo': PPO refused a value (AssertionError"),  # SB3's own checks
+        ({"learning_rate": -1.0}, "section 'ppo': PPO refused a value (ValueError: Invalid learning rate"),  # torch's
+        ({"policy_kwargs": {"net_arch": "wide"}}, "section 'ppo' has a value PPO cannot use"),
+    ):
+        wrong.write_text(yaml.safe_dump({**TINY_SCHEDULE, "ppo": values}))
+        assert train.main(["--config", str(config), "--hyperparameters", str(wrong), "--out", str(tmp_path)]) == 2
+        assert message in capsys.readouterr().err
+    for flags, message in ((["--seed", "-1"], "--seed must be >= 0"), (["--out", str(wrong)], "a file is there")):
+        with pytest.raises(SystemExit):
+            train.main(flags)
+        assert message in capsys.readouterr().err
     with pytest.raises(SystemExit):
         train.main(["--algo", "dqn"])
     assert "dqn" in capsys.readouterr().err
@@ -176,6 +188,8 @@ def test_a_model_takes_only_the_statistics_saved_with_it(tiny, tmp_path):
         statistics.write_bytes(data)
         with pytest.raises(ValueError, match="another save's statistics"):
             load_model(f"ppo:{model}")
+    with pytest.raises(ValueError, match=f"was trained with ppo: load it as ppo:{model}"):
+        load_model(f"a2c:{model}")  # would load as A2C, which shares PPO's policy class, and run as the wrong thing
     statistics.unlink()
     with pytest.raises(FileNotFoundError, match=r"statistics .* are missing"):
         load_model(f"ppo:{model}")
@@ -367,6 +381,7 @@ def test_the_schedule_is_validated_with_the_key_named(tmp_path):
         ("ppo: {}", "needs a 'schedule' section"),
         ("schedule: {}\nppo: 3", "ppo: must be a mapping"),
         ("schedule: [", "not valid YAML"),
+        ("schedule: {}\nppo: {}\nppo: {gamma: 0.9}", "found key 'ppo' twice"),  # PyYAML would keep the last
     ]
     for text, message in files:
         (tmp_path / "h.yaml").write_text(text)
@@ -375,7 +390,8 @@ def test_the_schedule_is_validated_with_the_key_named(tmp_path):
     with pytest.raises(ConfigError, match="no file"):
         load_training(tmp_path / "none.yaml", "ppo")
     # A learning rate written as rl-zoo3's files write it without their !!float tag is a number, not a string.
-    (tmp_path / "h.yaml").write_text(yaml.safe_dump(TINY_SCHEDULE) + "ppo: {learning_rate: 3e-4}\n")
+    schedule_only = yaml.safe_dump({"schedule": TINY_SCHEDULE["schedule"]})
+    (tmp_path / "h.yaml").write_text(schedule_only + "ppo: {learning_rate: 3e-4}\n")
     assert load_training(tmp_path / "h.yaml", "ppo")[1] == {"learning_rate": 3e-4}
     # The record keeps the file's schedule and, beside it, what the command line changed.
     run = tiny.replace(timesteps=512, env="AASL-Greedy-v0", n_envs=None)

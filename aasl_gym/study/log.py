@@ -114,7 +114,10 @@ class EpisodeLog:
         does a study's log from before it gained variants (appended): their rows are new."""
         if not self.path.is_file():
             return {}
-        lines = self.path.read_text().splitlines()
+        try:
+            lines = self.path.read_text().splitlines()
+        except UnicodeDecodeError as exc:
+            raise LogMismatch(f"{self.path} is not a text log ({exc})") from None
         try:
             written = json.loads(lines[0])["config"]
         except (IndexError, KeyError, TypeError, json.JSONDecodeError):
