@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from aasl_gym.config import EnvConfig
+from aasl_gym.config import ConfigError, EnvConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.estimator import SourceTracker, TrackerOutput
 from aasl_gym.extra_pairs import PairFrame
@@ -61,6 +61,8 @@ class FacilityEnv(AASLEnv):
         scenario: str | None = "facility",
         **overrides: Any,
     ):
+        if "patrol" in overrides:
+            raise ConfigError("patrol: AASL-Facility-v0 flies its own patrol (a loop, then a spiral); it takes none")
         super().__init__(config, patrol=None, render_mode=render_mode, scenario=scenario, **overrides)
         cfg = self.config
         self.hydrophones = pod_hydrophones(cfg.facility, cfg.world.fixed_position)

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger, make_output_format
 from stable_baselines3.common.save_util import load_from_zip_file
@@ -125,10 +126,16 @@ class LoadedPolicy:
 def load_model(spec: str, device: str = "cpu") -> LoadedPolicy:
     """Load ``ALGO:PATH`` (e.g. ``ppo:runs/x/model.zip``) and its normalization statistics, if saved,
     with a clear error if either is missing or corrupt."""
+    if not isinstance(spec, str):
+        raise TypeError(f"model {spec!r}: expected a string ALGO:PATH, e.g. ppo:models/ppo_default.zip")
     algo, sep, path = spec.partition(":")
     if not sep or not path:
         raise ValueError(f"model {spec!r}: expected ALGO:PATH, e.g. ppo:models/ppo_default.zip")
     cls = algorithm_class(algo)
+    try:
+        torch.device(device)
+    except RuntimeError as exc:
+        raise ValueError(f"device {device!r}: not a torch device, e.g. cpu, cuda or cuda:0 ({exc})") from None
     file = Path(path)
     if not file.is_file():
         raise FileNotFoundError(f"model {spec!r}: no file at {file}")

@@ -169,6 +169,8 @@ def test_gym_make_refuses_a_facility_it_would_not_fly():
         gym.make("AASL-Helix-v0", scenario="facility")
     with pytest.raises(ConfigError, match="config: AASL-Facility-v0 needs a facility"):
         gym.make("AASL-Facility-v0", scenario=None)
+    with pytest.raises(ConfigError, match="patrol: AASL-Facility-v0 flies its own patrol"):
+        gym.make("AASL-Facility-v0", patrol="helix")
 
 
 OVERRIDES = [

@@ -188,6 +188,10 @@ def test_a_model_takes_only_the_statistics_saved_with_it(tiny, tmp_path):
         statistics.write_bytes(data)
         with pytest.raises(ValueError, match="another save's statistics"):
             load_model(f"ppo:{model}")
+    with pytest.raises(ValueError, match="device 'gpu9': not a torch device"):
+        load_model(f"ppo:{model}", device="gpu9")  # not the model's fault
+    with pytest.raises(TypeError, match="expected a string ALGO:PATH"):
+        load_model(None)
     with pytest.raises(ValueError, match=f"was trained with ppo: load it as ppo:{model}"):
         load_model(f"a2c:{model}")  # would load as A2C, which shares PPO's policy class, and run as the wrong thing
     statistics.unlink()
