@@ -151,10 +151,11 @@ class AASLEnv(gym.Env):
 
     ## Rewards
     A weighted sum (weights in ``reward``) of ``information_gain`` (increase of the log-determinant of
-    the position Fisher information at the estimate, nats), ``error_shrinkage`` (decrease of the true
-    error, m; privileged), ``control_effort`` (-|action|^2), ``constraint_penalty`` (-1 on a step that
-    hits a limit) and ``success_bonus`` (1 when the error first falls below ``success_threshold``).
-    Each weighted term is in ``info["reward_terms"]``.
+    the position Fisher information at the estimate, nats; under the direct path's Jacobian and R_eff's
+    diagonal in every world - the phasor model's ripple is not rewarded), ``error_shrinkage`` (decrease
+    of the true error, m; privileged), ``control_effort`` (-|action|^2), ``constraint_penalty`` (-1 on a
+    step that hits a limit) and ``success_bonus`` (1 when the error first falls below
+    ``success_threshold``). Each weighted term is in ``info["reward_terms"]``.
 
     ## Starting State
     The robot starts at ``receiver.start_position``. The source starts uniformly within
@@ -171,24 +172,24 @@ class AASLEnv(gym.Env):
       itself, so a config with another duration or rate needs no other wrapper.
 
     ## Info
-    Every step: ``time``, ``source_position``, ``source_velocity``, ``receiver_position``,
-    ``receiver_velocity``, ``receiver_position_reported``, ``fixed_position``, ``estimate_position``,
-    ``estimate_velocity``, ``position_error`` (of that estimate) and ``position_covariance`` (3x3),
-    ``measurement`` (the last [RD, RRD] the estimator received, as the observation shows it: held over
-    lost frames, zeros before the first), ``measured`` (whether that frame is this step's),
-    ``measurement_true`` (noise-free direct-path [RD, RRD]), ``snr_db`` (of the weaker
-    channel: in signal mode as the front end measures it, else from the source level, spreading and
-    noise level), ``initialized``, ``converged`` (error below the threshold now), ``reinitialized``,
-    ``fim_logdet``, ``reward_terms``. Until the filter starts (``initialized`` False) the estimate is
-    the prior's - a finite mean and covariance (``aasl_gym.fisher.information_prior``) - so no value
-    is NaN and Gymnasium's ``check_env`` passes. A lost frame - one the ``fault`` option drops, or in
-    which the front end's detector hears no source (``signal.detection_snr_db``) - has ``measured``
-    False (and, if dropped, ``snr_db`` NaN); the filter only predicts. On the last step also
-    ``convergence_time``, ``rmse``, ``final_error``, ``success`` (threshold -> bool),
-    ``time_to_first_estimate`` and ``reinitializations``; these count from the tracker's own estimate
-    (the prior never converges and is not in the RMSE). The ones that can be NaN (``convergence_time``
-    when it never converged) are 0-d float64 arrays; ``numpy.testing.assert_equal`` compares them NaN
-    for NaN, Gymnasium's ``np.allclose`` does not.
+    ``reset`` gives ``time`` and ``source_motion`` (the motion drawn, for ``mixed``). Every step:
+    ``time``, ``source_position``, ``source_velocity``, ``receiver_position``, ``receiver_velocity``,
+    ``receiver_position_reported``, ``fixed_position``, ``estimate_position``, ``estimate_velocity``,
+    ``position_error`` (of that estimate) and ``position_covariance`` (3x3), ``measurement`` (the last
+    [RD, RRD] the estimator received, as the observation shows it: held over lost frames, zeros before
+    the first), ``measured`` (whether that frame is this step's), ``measurement_true`` (noise-free
+    direct-path [RD, RRD]), ``snr_db`` (of the weaker channel: in signal mode as the front end measures
+    it, else from the source level, spreading and noise level), ``initialized``, ``converged`` (error
+    below the threshold now), ``reinitialized``, ``fim_logdet``, ``reward_terms``. Until the filter
+    starts (``initialized`` False) the estimate is the prior's - a finite mean and covariance
+    (``aasl_gym.fisher.information_prior``) - so no value is NaN and Gymnasium's ``check_env`` passes. A
+    lost frame - one the ``fault`` option drops, or in which the front end's detector hears no source
+    (``signal.detection_snr_db``) - has ``measured`` False (and, if dropped, ``snr_db`` NaN); the filter
+    only predicts. On the last step also ``convergence_time``, ``rmse``, ``final_error``, ``success``
+    (threshold -> bool), ``time_to_first_estimate`` and ``reinitializations``; these count from the
+    tracker's own estimate (the prior never converges and is not in the RMSE). The ones that can be NaN
+    (``convergence_time`` when it never converged) are 0-d float64 arrays;
+    ``numpy.testing.assert_equal`` compares them NaN for NaN, Gymnasium's ``np.allclose`` does not.
 
     ## Arguments
     ``AASLEnv(config=None, patrol=None, render_mode=None, scenario=None, source_motion=None,

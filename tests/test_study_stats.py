@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from aasl_gym.study.stats import mean_ci95, paired_comparisons, study_comparisons, summarize
+from aasl_gym.study.stats import mean_ci95, paired_comparisons, share_ci95, study_comparisons, summarize
 
 DURATION = 100.0
 
@@ -23,6 +23,7 @@ def row(
     final_error=0.5,
     reinitializations=0,
     measurement="geometric",
+    first=None,
 ):
     """An episode row; ``success`` defaults to converging within 1 m exactly when ``time`` is set."""
     converged = time is not None
@@ -38,6 +39,7 @@ def row(
         "rmse": rmse,
         "final_error": final_error,
         "reinitializations": reinitializations,
+        "time_to_first_estimate": first,
     }
 
 
@@ -64,17 +66,30 @@ def test_mean_ci95_without_enough_values():
     assert math.isnan(mean) and all(math.isnan(v) for v in ci)  # a NaN is not silently dropped
 
 
+def test_a_shares_interval_is_wilsons():
+    """Wilson's interval written out: (p + z^2/2n +- z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n), z = 1.96."""
+    z = stats.norm.ppf(0.975)
+    for successes, count in ((93, 100), (0, 10), (10, 10), (1, 3)):
+        p = successes / count
+        centre, half = p + z**2 / (2 * count), z * math.sqrt(p * (1 - p) / count + z**2 / (4 * count**2))
+        expected = [(centre - half) / (1 + z**2 / count), (centre + half) / (1 + z**2 / count)]
+        assert share_ci95(successes, count) == pytest.approx(expected, abs=1e-12)
+    assert share_ci95(10, 10)[1] == pytest.approx(1.0) and share_ci95(10, 10)[0] < 0.75  # not a point at 100 %
+
+
 def test_summary_of_hand_made_rows():
     rows = [
-        row(seed=0, time=10.0, rmse=1.0, final_error=0.2, reinitializations=1),
-        row(seed=1, time=None, rmse=None, final_error=4.0, reinitializations=0),
-        row(seed=2, time=30.0, rmse=5.0, final_error=None, reinitializations=2),
+        row(seed=0, time=10.0, rmse=1.0, final_error=0.2, reinitializations=1, first=2.0),
+        row(seed=1, time=None, rmse=None, final_error=4.0, reinitializations=0, first=3.0),
+        row(seed=2, time=30.0, rmse=5.0, final_error=None, reinitializations=2, first=7.0),
         row(seed=3, time=None, rmse=2.0, final_error=0.6, reinitializations=1),
         row(policy="spiral", seed=0, time=None, rmse=None, final_error=None),
     ]
     helix, spiral = summarize(rows, DURATION)
     assert (helix["policy"], helix["n"], spiral["policy"], spiral["n"]) == ("helix", 4, "spiral", 1)
     assert helix["success_rate"] == {"0.5": 0.5, "1.0": 0.5, "3.0": 1.0}
+    assert helix["success_rate_ci95"]["1.0"] == share_ci95(2, 4) and helix["success_rate_ci95"]["3.0"][1] == 1.0
+    assert helix["mean_time_to_first_estimate"] == 4.0  # of 2, 3 and 7: the episode with none left out
     # Over the two episodes that converged: mean 20, sd sqrt(200), t(0.975, 1 dof) = 12.706.
     assert helix["mean_convergence_time"] == 20.0
     assert helix["convergence_time_ci95"] == pytest.approx([20 - 12.706 * 10, 20 + 12.706 * 10], abs=0.01)
@@ -86,7 +101,7 @@ def test_summary_of_hand_made_rows():
     assert spiral["mean_convergence_time"] is None and spiral["convergence_time_ci95"] == [None, None]
     assert spiral["mean_convergence_time_censored"] == DURATION
     assert spiral["rmse_median"] is None and spiral["final_error_median"] is None
-    assert spiral["success_rate"]["1.0"] == 0.0
+    assert spiral["success_rate"]["1.0"] == 0.0 and spiral["mean_time_to_first_estimate"] is None
 
 
 def test_summary_groups_by_policy_initializer_motion_and_measurement():

@@ -1,6 +1,6 @@
-"""A study's statistics: per combination, success shares, convergence times with 95 % Student-t
-intervals and error medians (:func:`summarize`); per motion, each policy or initializer against a
-baseline on the seeds they share (:func:`paired_comparisons`).
+"""A study's statistics: per combination, success shares with 95 % Wilson intervals, convergence times with 95 %
+Student-t intervals, the time to the first estimate and error medians (:func:`summarize`); per motion, each policy
+or initializer against a baseline on the seeds they share (:func:`paired_comparisons`).
 
 A row's missing values are ``None`` (an episode that never converged has no convergence time); the
 censored statistics count such an episode as the full episode ``duration``.
@@ -37,6 +37,13 @@ def mean_ci95(values: Sequence[float] | np.ndarray) -> tuple[float | None, list[
     return mean, [mean - half, mean + half]
 
 
+def share_ci95(successes: int, count: int) -> list[float]:
+    """A 95 % Wilson interval of a share of ``successes`` in ``count`` episodes: unlike the normal approximation's, it
+    stays within [0, 1] and does not shrink to a point at 0 % or 100 %."""
+    interval = stats.binomtest(successes, count).proportion_ci(confidence_level=0.95, method="wilson")
+    return [float(interval.low), float(interval.high)]
+
+
 def _combination(row: Row) -> tuple[str, str, str, str]:
     return row["policy"], row["initializer"], row["motion"], row["measurement"]
 
@@ -56,6 +63,8 @@ def _summary_row(key: tuple[str, str, str, str], group: list[Row], duration: flo
     censored = np.array([duration if r["convergence_time"] is None else r["convergence_time"] for r in group])
     mean, ci = mean_ci95(times)
     rmses = [r["rmse"] for r in group if r["rmse"] is not None]
+    first = [r["time_to_first_estimate"] for r in group if r.get("time_to_first_estimate") is not None]
+    successes = {k: sum(bool(r["success"][k]) for r in group) for k in group[0]["success"]}
     finals = [r["final_error"] for r in group if r["final_error"] is not None]
     return {
         "policy": policy,
@@ -63,10 +72,12 @@ def _summary_row(key: tuple[str, str, str, str], group: list[Row], duration: flo
         "motion": motion,
         "measurement": measurement,
         "n": len(group),
-        "success_rate": {k: float(np.mean([r["success"][k] for r in group])) for k in group[0]["success"]},
+        "success_rate": {k: count / len(group) for k, count in successes.items()},
+        "success_rate_ci95": {k: share_ci95(count, len(group)) for k, count in successes.items()},
         "mean_convergence_time": mean,
         "convergence_time_ci95": ci,
         "mean_convergence_time_censored": float(censored.mean()),
+        "mean_time_to_first_estimate": float(np.mean(first)) if first else None,
         "rmse_median": float(np.median(rmses)) if rmses else None,
         "final_error_median": float(np.median(finals)) if finals else None,
         "mean_reinitializations": float(np.mean([r["reinitializations"] for r in group])),
