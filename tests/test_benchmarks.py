@@ -16,6 +16,7 @@ import bench_instructions
 from crb_bound import as_few_chance, bound_env, efficient_count_range, efficient_success, episode_covariance
 from heldout_figure import bound_rows, tracker_success
 from reproduce_rows import differences, paper_variants
+from sweep_patrol import parse_grid
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -187,6 +188,15 @@ def test_the_consistency_report_counts_chi_square_draws_inside_their_intervals(t
     consistency.write_report(tmp_path, summary)
     assert (tmp_path / "consistency.md").read_text().count("| free |") == 2
     assert (tmp_path / "consistency.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_patrol_sweeps_grid_names_a_bad_field_or_value():
+    grid = parse_grid(["spiral_period=60,120", "spiral_depth=3"])
+    assert grid == {"spiral_period": [60.0, 120.0], "spiral_depth": [3.0]}
+    bad = (("spiral_perod=60", "a patrol field"), ("radius=", "a patrol field"), ("radius=5,x", "numbers"))
+    for pair, message in bad:
+        with pytest.raises(SystemExit, match=message):
+            parse_grid([pair])
 
 
 def test_a_malformed_run_names_what_is_expected():
