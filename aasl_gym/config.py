@@ -495,9 +495,9 @@ class PatrolConfig:
     depth_max: float = 12.0  # m
     depth_period: float = 30.0  # s, period of the helix's depth oscillation
     spiral_radius_min: float = 4.0  # m, spiral starts just outside the keep-out zone
-    spiral_radius_max: float = 25.0  # m
-    spiral_period: float = 120.0  # s, out and back
-    spiral_depth: float = 7.0  # m
+    spiral_radius_max: float = 35.0  # m (the sweep in reports/patrol_sweep/)
+    spiral_period: float = 60.0  # s, out and back
+    spiral_depth: float = 11.0  # m
     lawnmower_width: float = 40.0  # m, side of the square the lawnmower sweeps
     lawnmower_spacing: float = 10.0  # m between legs
     position_gain: float = 0.5  # 1/s, feedback that pulls the robot onto the pattern

@@ -650,8 +650,13 @@ def test_the_track_search_leaves_a_wrong_dip_of_the_whole_track():
     search's lead-in) the filter sits in a wrong dip of its whole track's phasor fit: at 88 s it is 3.6 m off, and the
     track refit from its own state stays there, explaining the track poorly (robust cost per residual above
     ``TRACK_SEARCH_GATE``). With ``filter.track_search`` the same refit searches about the filter and adopts a
-    fit within 0.1 m of the source; a search whose finds all cost more than the refit leaves the refit's fit."""
-    config = EnvConfig().replace(source={"motion": "static"}, filter={"track_search": False})
+    fit within 0.1 m of the source; a search whose finds all cost more than the refit leaves the refit's fit. The
+    spiral as it was until session 51 (4-25 m, 120 s, 7 m deep): the swept one finds this source without the dip."""
+    config = EnvConfig().replace(
+        source={"motion": "static"},
+        filter={"track_search": False},
+        patrol={"spiral_radius_max": 25.0, "spiral_period": 120.0, "spiral_depth": 7.0},
+    )
     env = AASLEnv(config, patrol="spiral")
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(estimator, "LEAD_IN", np.inf)
