@@ -486,8 +486,8 @@ class EpisodeConfig:
 
 @dataclass(frozen=True)
 class PatrolConfig:
-    """Scripted patrol geometry, centred on the fixed hydrophone (the helix chosen by the sweep in
-    reports/patrol_sweep/)."""
+    """Scripted patrol geometry, centred on the fixed hydrophone (the helix, the spiral, the lawnmower and the square
+    as the sweeps in reports/patrol_sweep/ chose them; the circle shares the helix's radius)."""
 
     speed: float = 1.0  # m/s along the path
     radius: float = 15.0  # m, helix / circle radius, the square's half-side
