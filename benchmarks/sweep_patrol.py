@@ -25,14 +25,8 @@ import numpy as np
 from aasl_gym.config import EnvConfig, PatrolConfig
 from aasl_gym.env import AASLEnv
 from aasl_gym.patrols import REFERENCES
-from crb_bound import episode_bound, print_table
-
-FREE_FIELD = {
-    "world": {"reflections": False},
-    "measurement": {"mode": "geometric"},
-    "filter": {"multipath": "none"},
-    "initializer": {"name": "naive"},
-}
+from crb_bound import bound_env, episode_bound, print_table
+from tracker_check import WORLDS  # run as a script: benchmarks/ is on sys.path
 
 
 def time_to_bound(env: AASLEnv, seed: int, target: float) -> float:
@@ -88,8 +82,8 @@ def main(argv: list[str] | None = None) -> None:
 
     def rows():
         for (patrol, receiver), motion in itertools.product(chosen, args.motions):
-            config = EnvConfig().replace(patrol=patrol, receiver=receiver, source={"motion": motion}, **FREE_FIELD)
-            env = AASLEnv(config, patrol=args.pattern)
+            flown = EnvConfig().replace(patrol=patrol, receiver=receiver, **WORLDS["free"])
+            env = bound_env(flown, motion, args.pattern)
             times = np.array([time_to_bound(env, seed, args.target) for seed in range(args.episodes)])
             cells = " | ".join(f"{value:g}" for value in patrol.values())
             yield f"| {cells} | {motion} | {np.median(times):.1f} | {np.mean(np.isfinite(times)):.0%} |"
